@@ -1,0 +1,136 @@
+"""Networks of the Intrinsic Curiosity Module (Pathak et al., 2017)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+import torch.nn.functional as F
+from tensordict.utils import NestedKey, unravel_key
+from torch import nn
+
+from torchrl_surprise.modules.vae import MiniGridEncoder, VectorEncoder
+
+__all__ = ["ICMModel"]
+
+
+class ICMModel(nn.Module):
+    """Feature encoder ``phi``, inverse model and forward model of ICM.
+
+    * ``phi(s)``: observation features (any encoder exposing ``out_features``).
+    * inverse model: ``(phi(s), phi(s')) -> a`` (logits for discrete actions, a
+      mean for continuous ones).
+    * forward model: ``(phi(s), a) -> phi(s')``; its squared error is the bonus.
+
+    Args:
+        encoder (nn.Module): maps observations (in ``in_keys`` order) to features.
+        action_dim (int): number of discrete actions, or the size of a continuous
+            action.
+        discrete (bool): discrete actions (integers or one-hot) or continuous.
+        hidden_dim (int): width of the inverse and forward models.
+        in_keys (sequence of NestedKey): observation keys the model reads.
+
+    Examples:
+        >>> import torch
+        >>> icm = ICMModel.for_minigrid(num_actions=7, hidden_dim=32)
+        >>> image = torch.randint(0, 3, (4, 7, 7, 3), dtype=torch.uint8)
+        >>> direction = torch.zeros(4, dtype=torch.long)
+        >>> action = torch.randint(0, 7, (4,))
+        >>> icm.forward_error((image, direction), action, (image, direction)).shape
+        torch.Size([4])
+    """
+
+    def __init__(
+        self,
+        encoder: nn.Module,
+        action_dim: int,
+        discrete: bool = True,
+        hidden_dim: int = 256,
+        in_keys: Sequence[NestedKey] = ("observation",),
+    ):
+        super().__init__()
+        if isinstance(in_keys, str):
+            in_keys = [in_keys]
+        self.in_keys = [unravel_key(key) for key in in_keys]
+        self.encoder = encoder
+        self.action_dim = action_dim
+        self.discrete = discrete
+        feat = encoder.out_features
+        self.inverse_model = nn.Sequential(
+            nn.Linear(2 * feat, hidden_dim),
+            nn.ReLU(),
+            nn.Linear(hidden_dim, action_dim),
+        )
+        self.forward_model = nn.Sequential(
+            nn.Linear(feat + action_dim, hidden_dim),
+            nn.ReLU(),
+            nn.Linear(hidden_dim, feat),
+        )
+
+    @classmethod
+    def for_minigrid(
+        cls, num_actions: int = 7, hidden_dim: int = 256, use_direction: bool = True
+    ) -> ICMModel:
+        """ICM on MiniGrid's symbolic grid (``"image"``, ``"direction"``)."""
+        return cls(
+            MiniGridEncoder(hidden_dim=hidden_dim, use_direction=use_direction),
+            num_actions,
+            discrete=True,
+            hidden_dim=hidden_dim,
+            in_keys=["image", "direction"] if use_direction else ["image"],
+        )
+
+    @classmethod
+    def for_vector(
+        cls, obs_dim: int, action_dim: int, hidden_dim: int = 256
+    ) -> ICMModel:
+        """ICM on flat observations with continuous actions."""
+        return cls(
+            VectorEncoder(obs_dim, hidden_dim=hidden_dim),
+            action_dim,
+            discrete=False,
+            hidden_dim=hidden_dim,
+        )
+
+    def encode_action(self, action: torch.Tensor) -> torch.Tensor:
+        """One-hot (discrete: from integers or one-hot) or float (continuous)."""
+        if not self.discrete:
+            if action.shape[-1] != self.action_dim:
+                raise ValueError(
+                    f"action: expected trailing size {self.action_dim}, got "
+                    f"{tuple(action.shape)}."
+                )
+            return action.float()
+        if action.dtype.is_floating_point or action.dtype == torch.bool:
+            if action.shape[-1] != self.action_dim:
+                raise ValueError(
+                    f"action: expected integer actions or one-hot of size "
+                    f"{self.action_dim}, got {tuple(action.shape)} ({action.dtype})."
+                )
+            return action.float()
+        if action.shape and action.shape[-1] == 1:
+            action = action.squeeze(-1)
+        if ((action < 0) | (action >= self.action_dim)).any():
+            raise ValueError(f"action: expected integers in [0, {self.action_dim}).")
+        return F.one_hot(action.long(), self.action_dim).float()
+
+    def action_target(self, action: torch.Tensor) -> torch.Tensor:
+        """Integer class targets (discrete) or float targets (continuous)."""
+        if self.discrete:
+            return self.encode_action(action).argmax(-1)
+        return action.float()
+
+    def features(self, observations: Sequence[torch.Tensor]) -> torch.Tensor:
+        return self.encoder(*observations)
+
+    def forward_error(
+        self,
+        observations: Sequence[torch.Tensor],
+        action: torch.Tensor,
+        next_observations: Sequence[torch.Tensor],
+    ) -> torch.Tensor:
+        """``0.5 * ||f(phi(s), a) - phi(s')||^2`` per transition, shape ``[...]``."""
+        phi = self.features(observations)
+        phi_next = self.features(next_observations)
+        pred = self.forward_model(torch.cat([phi, self.encode_action(action)], -1))
+        return 0.5 * (pred - phi_next).pow(2).sum(-1)

@@ -1,0 +1,432 @@
+"""A state VAE whose posterior-to-prior KL is the surprise bonus.
+
+The VAE maps one or several observation tensors to a diagonal Gaussian posterior
+``q(z|s) = N(loc, diag(scale^2))``; a decoder turns a latent sample into the
+parameters of a likelihood over the same observations. Two families ship:
+
+* MiniGrid's 7x7x3 symbolic grid (object, colour and state ids, plus the agent's
+  direction): ids are categories, so the encoder embeds them and the decoder
+  predicts a categorical distribution per cell and channel.
+* Flat float vectors (MuJoCo): an MLP encoder and a Gaussian decoder with a
+  learned per-dimension scale.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import torch
+import torch.nn.functional as F
+from tensordict.utils import NestedKey, unravel_key
+from torch import nn
+
+__all__ = [
+    "GaussianVectorDecoder",
+    "MiniGridDecoder",
+    "MiniGridEncoder",
+    "StateVAE",
+    "VectorEncoder",
+    "kl_to_standard_normal",
+    "MINIGRID_NUM_OBJECTS",
+    "MINIGRID_NUM_COLORS",
+    "MINIGRID_NUM_STATES",
+]
+
+# minigrid.core.constants: 11 object types, 6 colours, 3 door states, 4 directions.
+MINIGRID_NUM_OBJECTS = 11
+MINIGRID_NUM_COLORS = 6
+MINIGRID_NUM_STATES = 3
+MINIGRID_NUM_DIRECTIONS = 4
+
+
+def kl_to_standard_normal(loc: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
+    """Closed-form ``KL(N(loc, diag(scale^2)) || N(0, I))``, summed over the last dim.
+
+    Args:
+        loc (torch.Tensor): posterior mean, shape ``[..., latent_dim]``.
+        scale (torch.Tensor): posterior standard deviation (positive), same shape.
+
+    Returns:
+        The KL in nats, shape ``[...]``.
+
+    Examples:
+        >>> import torch
+        >>> kl_to_standard_normal(torch.zeros(2, 3), torch.ones(2, 3))
+        tensor([0., 0.])
+        >>> kl_to_standard_normal(torch.ones(1, 2), torch.ones(1, 2))
+        tensor([1.])
+    """
+    var = scale.pow(2)
+    return 0.5 * (loc.pow(2) + var - 1.0 - var.log()).sum(-1)
+
+
+def _check_floating(name: str, tensor: torch.Tensor, last_shape: tuple[int, ...]):
+    if not torch.is_floating_point(tensor):
+        raise TypeError(
+            f"{name}: expected a floating-point tensor, got dtype {tensor.dtype}."
+        )
+    if tuple(tensor.shape[len(tensor.shape) - len(last_shape) :]) != last_shape:
+        raise ValueError(
+            f"{name}: expected trailing shape {last_shape}, got {tuple(tensor.shape)}."
+        )
+
+
+class MiniGridEncoder(nn.Module):
+    """Embeds MiniGrid's symbolic ``7x7x3`` grid (and optionally the direction).
+
+    Each (cell, channel, id) triple has its own embedding row and the rows of a
+    state are summed: exactly a linear layer on the one-hot grid, at the cost of
+    147 look-ups instead of a ``980``-wide matrix product. Ids are categories,
+    never magnitudes.
+
+    Args:
+        hidden_dim (int): width of the embedding and of the hidden layer.
+        use_direction (bool): also embed the agent's direction (an integer in
+            ``[0, 4)``); then ``forward`` takes ``(image, direction)``.
+        grid_size (int): side of the egocentric view (7 in MiniGrid).
+
+    Examples:
+        >>> import torch
+        >>> enc = MiniGridEncoder(hidden_dim=32)
+        >>> image = torch.zeros(5, 7, 7, 3, dtype=torch.uint8)
+        >>> enc(image, torch.zeros(5, dtype=torch.long)).shape
+        torch.Size([5, 32])
+    """
+
+    def __init__(
+        self, hidden_dim: int = 256, use_direction: bool = True, grid_size: int = 7
+    ):
+        super().__init__()
+        self.grid_size = grid_size
+        self.use_direction = use_direction
+        self.out_features = hidden_dim
+        sizes = (MINIGRID_NUM_OBJECTS, MINIGRID_NUM_COLORS, MINIGRID_NUM_STATES)
+        self.register_buffer(
+            "_num_ids", torch.tensor(sizes, dtype=torch.long), persistent=False
+        )
+        per_cell = sum(sizes)
+        channel_offset = torch.tensor([0, sizes[0], sizes[0] + sizes[1]])
+        cell_offset = torch.arange(grid_size * grid_size) * per_cell
+        offsets = (cell_offset[:, None] + channel_offset[None, :]).reshape(-1)
+        self.register_buffer("_offsets", offsets, persistent=False)
+        num_rows = grid_size * grid_size * per_cell
+        self._direction_row = num_rows
+        num_rows += MINIGRID_NUM_DIRECTIONS if use_direction else 0
+        self.embedding = nn.EmbeddingBag(num_rows, hidden_dim, mode="sum")
+        nn.init.normal_(self.embedding.weight, std=1.0 / math.sqrt(3 * grid_size**2))
+        self.bias = nn.Parameter(torch.zeros(hidden_dim))
+        self.hidden = nn.Sequential(
+            nn.ReLU(), nn.Linear(hidden_dim, hidden_dim), nn.ReLU()
+        )
+
+    def _indices(
+        self, image: torch.Tensor, direction: torch.Tensor | None
+    ) -> torch.Tensor:
+        g = self.grid_size
+        if image.dtype.is_floating_point or image.dtype == torch.bool:
+            raise TypeError(
+                "MiniGrid image: expected an integer tensor of object/colour/state "
+                f"ids, got dtype {image.dtype}."
+            )
+        if tuple(image.shape[-3:]) != (g, g, 3):
+            raise ValueError(
+                f"MiniGrid image: expected trailing shape ({g}, {g}, 3), got "
+                f"{tuple(image.shape)}."
+            )
+        ids = image.reshape(*image.shape[:-3], g * g, 3).long()
+        if ((ids < 0) | (ids >= self._num_ids)).any():
+            raise ValueError(
+                "MiniGrid image: ids out of range; expected objects < "
+                f"{MINIGRID_NUM_OBJECTS}, colours < {MINIGRID_NUM_COLORS}, states < "
+                f"{MINIGRID_NUM_STATES}."
+            )
+        idx = ids.reshape(*ids.shape[:-2], -1) + self._offsets
+        if self.use_direction:
+            if direction is None:
+                raise ValueError(
+                    "MiniGridEncoder(use_direction=True) needs a direction."
+                )
+            if direction.dtype.is_floating_point:
+                raise TypeError(
+                    f"MiniGrid direction: expected integers, got {direction.dtype}."
+                )
+            direction = direction.long().reshape(*image.shape[:-3], -1)
+            if direction.shape[-1] != 1:
+                raise ValueError(
+                    "MiniGrid direction: expected one integer per state, got shape "
+                    f"{tuple(direction.shape)} for images of shape {tuple(image.shape)}."
+                )
+            if ((direction < 0) | (direction >= MINIGRID_NUM_DIRECTIONS)).any():
+                raise ValueError("MiniGrid direction: expected values in [0, 4).")
+            idx = torch.cat([idx, direction + self._direction_row], -1)
+        return idx
+
+    def forward(
+        self, image: torch.Tensor, direction: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        idx = self._indices(image, direction)
+        batch = idx.shape[:-1]
+        out = self.embedding(idx.reshape(-1, idx.shape[-1])) + self.bias
+        return self.hidden(out).reshape(*batch, -1)
+
+
+class MiniGridDecoder(nn.Module):
+    """Categorical likelihood over each cell's object, colour and state (and direction).
+
+    Args:
+        latent_dim (int): size of ``z``.
+        hidden_dim (int): hidden width.
+        use_direction (bool): also reconstruct the direction.
+        grid_size (int): side of the egocentric view.
+
+    Examples:
+        >>> import torch
+        >>> dec = MiniGridDecoder(latent_dim=4, hidden_dim=16)
+        >>> image = torch.ones(2, 7, 7, 3, dtype=torch.uint8)
+        >>> dec.log_prob(torch.zeros(2, 4), image, torch.zeros(2, dtype=torch.long)).shape
+        torch.Size([2])
+    """
+
+    def __init__(
+        self,
+        latent_dim: int,
+        hidden_dim: int = 256,
+        use_direction: bool = True,
+        grid_size: int = 7,
+    ):
+        super().__init__()
+        self.grid_size = grid_size
+        self.use_direction = use_direction
+        self._sizes = (MINIGRID_NUM_OBJECTS, MINIGRID_NUM_COLORS, MINIGRID_NUM_STATES)
+        out = grid_size * grid_size * sum(self._sizes)
+        out += MINIGRID_NUM_DIRECTIONS if use_direction else 0
+        self.net = nn.Sequential(
+            nn.Linear(latent_dim, hidden_dim),
+            nn.ReLU(),
+            nn.Linear(hidden_dim, hidden_dim),
+            nn.ReLU(),
+            nn.Linear(hidden_dim, out),
+        )
+
+    def forward(self, z: torch.Tensor) -> torch.Tensor:
+        """Returns the logits, ``[..., 49 * 20 (+ 4)]``."""
+        return self.net(z)
+
+    def log_prob(
+        self,
+        z: torch.Tensor,
+        image: torch.Tensor,
+        direction: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """Log-likelihood of the observation under the decoder, summed over cells."""
+        logits = self(z)
+        cells = self.grid_size * self.grid_size
+        grid_logits = logits[..., : cells * sum(self._sizes)].reshape(
+            *logits.shape[:-1], cells, sum(self._sizes)
+        )
+        ids = image.reshape(*image.shape[:-3], cells, 3).long()
+        total = 0.0
+        start = 0
+        for channel, size in enumerate(self._sizes):
+            channel_logits = grid_logits[..., start : start + size].log_softmax(-1)
+            target = ids[..., channel].unsqueeze(-1)
+            total = total + channel_logits.gather(-1, target).squeeze(-1).sum(-1)
+            start += size
+        if self.use_direction:
+            dir_logits = logits[..., cells * sum(self._sizes) :].log_softmax(-1)
+            target = direction.long().reshape(*image.shape[:-3], 1)
+            total = total + dir_logits.gather(-1, target).squeeze(-1)
+        return total
+
+
+class VectorEncoder(nn.Module):
+    """MLP encoder for flat float observations (MuJoCo).
+
+    Args:
+        obs_dim (int): observation size.
+        hidden_dim (int): hidden width.
+        num_layers (int): hidden layers.
+
+    Examples:
+        >>> import torch
+        >>> VectorEncoder(obs_dim=17, hidden_dim=64)(torch.randn(3, 17)).shape
+        torch.Size([3, 64])
+    """
+
+    def __init__(self, obs_dim: int, hidden_dim: int = 256, num_layers: int = 2):
+        super().__init__()
+        self.obs_dim = obs_dim
+        self.out_features = hidden_dim
+        layers, width = [], obs_dim
+        for _ in range(num_layers):
+            layers += [nn.Linear(width, hidden_dim), nn.ReLU()]
+            width = hidden_dim
+        self.net = nn.Sequential(*layers)
+
+    def forward(self, observation: torch.Tensor) -> torch.Tensor:
+        _check_floating("observation", observation, (self.obs_dim,))
+        return self.net(observation)
+
+
+class GaussianVectorDecoder(nn.Module):
+    """Gaussian likelihood with a learned per-dimension scale for flat observations.
+
+    Args:
+        latent_dim (int): size of ``z``.
+        obs_dim (int): observation size.
+        hidden_dim (int): hidden width.
+        min_log_scale (float): lower bound of the learned log standard deviation,
+            which keeps the likelihood finite when a dimension is constant.
+
+    Examples:
+        >>> import torch
+        >>> dec = GaussianVectorDecoder(latent_dim=4, obs_dim=6, hidden_dim=16)
+        >>> dec.log_prob(torch.zeros(3, 4), torch.zeros(3, 6)).shape
+        torch.Size([3])
+    """
+
+    def __init__(
+        self,
+        latent_dim: int,
+        obs_dim: int,
+        hidden_dim: int = 256,
+        min_log_scale: float = -5.0,
+    ):
+        super().__init__()
+        self.net = nn.Sequential(
+            nn.Linear(latent_dim, hidden_dim),
+            nn.ReLU(),
+            nn.Linear(hidden_dim, hidden_dim),
+            nn.ReLU(),
+            nn.Linear(hidden_dim, obs_dim),
+        )
+        self.log_scale = nn.Parameter(torch.zeros(obs_dim))
+        self.min_log_scale = min_log_scale
+
+    def forward(self, z: torch.Tensor) -> torch.Tensor:
+        """Returns the reconstruction mean."""
+        return self.net(z)
+
+    def log_prob(self, z: torch.Tensor, observation: torch.Tensor) -> torch.Tensor:
+        """Gaussian log-likelihood of the observation, summed over dimensions."""
+        log_scale = self.log_scale.clamp_min(self.min_log_scale)
+        dist = torch.distributions.Normal(self(z), log_scale.exp())
+        return dist.log_prob(observation).sum(-1)
+
+
+class StateVAE(nn.Module):
+    """A VAE over states: encoder, diagonal Gaussian posterior, decoder.
+
+    The posterior scale is ``softplus(x + b) + min_scale`` with ``b`` chosen so
+    that a zero pre-activation gives ``scale == 1`` (the prior's): the scale is
+    positive, bounded away from 0 (so ``log scale`` and the KL stay finite) and
+    an untrained head starts near the prior.
+
+    Args:
+        encoder (nn.Module): maps the observation tensors (in the order of
+            ``in_keys``) to features; must expose ``out_features``.
+        decoder (nn.Module): has ``log_prob(z, *observations) -> [...]``.
+        latent_dim (int): size of ``z``.
+        in_keys (sequence of NestedKey): the observation keys the VAE reads, in
+            the order the encoder takes them. Transforms and losses default to them.
+        min_scale (float): floor of the posterior standard deviation.
+
+    Examples:
+        >>> import torch
+        >>> vae = StateVAE.for_vector(obs_dim=5, latent_dim=3, hidden_dim=16)
+        >>> loc, scale = vae.posterior(torch.randn(4, 5))
+        >>> vae.kl(torch.randn(4, 5)).shape
+        torch.Size([4])
+        >>> bool((scale > 0).all())
+        True
+    """
+
+    def __init__(
+        self,
+        encoder: nn.Module,
+        decoder: nn.Module,
+        latent_dim: int,
+        in_keys: Sequence[NestedKey] = ("observation",),
+        min_scale: float = 1e-4,
+    ):
+        super().__init__()
+        if isinstance(in_keys, str):
+            in_keys = [in_keys]
+        self.in_keys = [unravel_key(key) for key in in_keys]
+        self.encoder = encoder
+        self.decoder = decoder
+        self.latent_dim = latent_dim
+        self.min_scale = min_scale
+        self.head = nn.Linear(encoder.out_features, 2 * latent_dim)
+        # softplus(bias) + min_scale == 1 at a zero pre-activation.
+        self._scale_bias = math.log(math.expm1(1.0 - min_scale))
+
+    @classmethod
+    def for_minigrid(
+        cls,
+        latent_dim: int = 32,
+        hidden_dim: int = 256,
+        use_direction: bool = True,
+        in_keys: Sequence[NestedKey] | None = None,
+    ) -> StateVAE:
+        """A VAE for MiniGrid's symbolic grid (``"image"``) and ``"direction"``.
+
+        Examples:
+            >>> import torch
+            >>> vae = StateVAE.for_minigrid(latent_dim=8, hidden_dim=32)
+            >>> vae.in_keys
+            ['image', 'direction']
+            >>> image = torch.randint(0, 3, (2, 7, 7, 3), dtype=torch.uint8)
+            >>> vae.kl(image, torch.tensor([0, 1])).shape
+            torch.Size([2])
+        """
+        if in_keys is None:
+            in_keys = ["image", "direction"] if use_direction else ["image"]
+        return cls(
+            MiniGridEncoder(hidden_dim=hidden_dim, use_direction=use_direction),
+            MiniGridDecoder(
+                latent_dim, hidden_dim=hidden_dim, use_direction=use_direction
+            ),
+            latent_dim,
+            in_keys=in_keys,
+        )
+
+    @classmethod
+    def for_vector(
+        cls,
+        obs_dim: int,
+        latent_dim: int = 16,
+        hidden_dim: int = 256,
+        in_keys: Sequence[NestedKey] = ("observation",),
+    ) -> StateVAE:
+        """A VAE for flat float observations with a Gaussian decoder."""
+        return cls(
+            VectorEncoder(obs_dim, hidden_dim=hidden_dim),
+            GaussianVectorDecoder(latent_dim, obs_dim, hidden_dim=hidden_dim),
+            latent_dim,
+            in_keys=list(in_keys),
+        )
+
+    def posterior(
+        self, *observations: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The posterior's ``(loc, scale)``, each ``[..., latent_dim]``."""
+        features = self.encoder(*observations)
+        loc, raw = self.head(features).chunk(2, -1)
+        scale = F.softplus(raw + self._scale_bias) + self.min_scale
+        return loc, scale
+
+    def kl(self, *observations: torch.Tensor) -> torch.Tensor:
+        """``KL(q(z|s) || N(0, I))`` per state, in nats, shape ``[...]``."""
+        return kl_to_standard_normal(*self.posterior(*observations))
+
+    def forward(self, *observations: torch.Tensor):
+        """Posterior, a reparameterised sample and the reconstruction log-likelihood.
+
+        Returns:
+            ``(loc, scale, z, log_likelihood)``; ``log_likelihood`` is ``[...]``.
+        """
+        loc, scale = self.posterior(*observations)
+        z = loc + scale * torch.randn_like(loc)
+        return loc, scale, z, self.decoder.log_prob(z, *observations)

@@ -1,0 +1,17 @@
+"""Bonus transforms on one shared base, and the stochasticity transform."""
+
+from torchrl_surprise.transforms.base import (
+    NORMALIZATIONS,
+    IntrinsicRewardTransform,
+    LinearSchedule,
+)
+from torchrl_surprise.transforms.icm import ICMTransform
+from torchrl_surprise.transforms.vae_surprise import VAESurpriseTransform
+
+__all__ = [
+    "ICMTransform",
+    "IntrinsicRewardTransform",
+    "LinearSchedule",
+    "NORMALIZATIONS",
+    "VAESurpriseTransform",
+]
