@@ -6,6 +6,7 @@ from torchrl_surprise.transforms.base import (
     LinearSchedule,
 )
 from torchrl_surprise.transforms.icm import ICMTransform
+from torchrl_surprise.transforms.precomputed import PrecomputedBonusTransform
 from torchrl_surprise.transforms.vae_surprise import VAESurpriseTransform
 
 __all__ = [
@@ -13,5 +14,6 @@ __all__ = [
     "IntrinsicRewardTransform",
     "LinearSchedule",
     "NORMALIZATIONS",
+    "PrecomputedBonusTransform",
     "VAESurpriseTransform",
 ]

@@ -1,0 +1,309 @@
+"""A2C with a surprise bonus on MiniGrid (the paper's Algorithm 1), in TorchRL.
+
+Every update, in this order:
+
+1. the collector gathers ``frames_per_env`` steps from each of ``num_envs`` envs
+   (the set D of Algorithm 1, N = frames_per_env * num_envs transitions);
+2. the bonus of every transition in D is computed in one batched pass with the
+   current bonus model and mixed: ``r = r_ext + coef * normalize(r_int)``
+   (the env's reward is kept as ``extrinsic_reward`` and is what is logged);
+3. GAE on the mixed reward, then one A2C step (TorchRL's A2CLoss);
+   with ``intrinsic.intrinsic_critic=true`` a second value head learns the
+   intrinsic return instead and the advantage is ``A_ext + coef * A_int``;
+4. the bonus model (VAE, ICM or RND predictor) takes ``update_steps`` gradient
+   steps on the states of D, which is then discarded (no replay).
+
+Run: ``python recipes/a2c_minigrid/main.py bonus=vae env.name=MiniGrid-MultiRoom-N3-S4-v0``
+Resume a killed run: ``... hydra.run.dir=<its run dir> resume=true``.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import hydra
+import torch
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import OmegaConf
+from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
+from torchrl.record.loggers import get_logger
+from tqdm import tqdm
+from utils import (
+    check_config,
+    make_a2c,
+    make_actor_critic,
+    make_bonus,
+    make_collector,
+    make_env,
+)
+
+from torchrl_surprise.training import (
+    EpisodeStats,
+    get_rng_state,
+    load_checkpoint,
+    plot_learning_curves,
+    save_checkpoint,
+    seed_everything,
+    set_rng_state,
+)
+
+EVAL_SEED_OFFSET = 10_000
+
+
+def evaluate(env, policy, episodes: int, deterministic: bool) -> tuple[float, float]:
+    """Mean extrinsic return and success rate over ``episodes`` finished episodes."""
+    env.set_seed(env.eval_seed)
+    mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
+    returns: list[float] = []
+    state = env.reset()
+    with torch.no_grad(), set_exploration_type(mode):
+        for _ in range(100):  # at most 100 * 256 steps per env
+            rollout = env.rollout(
+                256,
+                policy,
+                auto_reset=False,
+                tensordict=state,
+                break_when_any_done=False,
+            )
+            done = rollout["next", "done"].squeeze(-1)
+            returns += rollout["next", "episode_reward"].squeeze(-1)[done].tolist()
+            state = step_mdp(rollout[..., -1])
+            if len(returns) >= episodes:
+                break
+    returns = returns[:episodes]
+    mean = sum(returns) / max(len(returns), 1)
+    return mean, sum(r > 0 for r in returns) / max(len(returns), 1)
+
+
+@hydra.main(config_path=".", config_name="config", version_base=None)
+def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
+    check_config(cfg)
+    run_dir = Path(HydraConfig.get().runtime.output_dir)
+    ckpt_path = run_dir / "checkpoint.pt"
+    torch.set_num_threads(cfg.torch_threads)
+    seed_everything(cfg.seed)
+    (run_dir / "config_resolved.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+
+    ckpt = None
+    if cfg.resume:
+        if not ckpt_path.exists():
+            raise FileNotFoundError(
+                f"resume=true but there is no checkpoint at {ckpt_path}; pass the run "
+                "directory of the run to resume as hydra.run.dir=<dir>."
+            )
+        ckpt = load_checkpoint(ckpt_path)
+    frames = ckpt["frames"] if ckpt else 0
+
+    # ---- envs, models, losses -------------------------------------------------
+    env = make_env(cfg, cfg.env.num_envs, seed=cfg.seed + frames)
+    bonus_transform, bonus_loss, env_side = make_bonus(cfg, env.action_spec, cfg.bonus)
+    if env_side is not None:
+        env.append_transform(env_side)
+    eval_env = make_env(cfg, cfg.eval.num_envs, seed=cfg.seed + EVAL_SEED_OFFSET)
+    eval_env.eval_seed = cfg.seed + EVAL_SEED_OFFSET
+    use_int_critic = cfg.intrinsic.intrinsic_critic and bonus_transform is not None
+    model, int_value = make_actor_critic(env.action_spec, use_int_critic)
+    policy = model.get_policy_operator()
+    loss_module, gae, gae_int = make_a2c(cfg, model, int_value)
+    params = list(model.parameters())
+    if int_value is not None:
+        shared = {id(p) for p in params}
+        params += [p for p in int_value.parameters() if id(p) not in shared]
+    optim = torch.optim.RMSprop(
+        params, lr=cfg.optim.lr, alpha=cfg.optim.alpha, eps=cfg.optim.eps
+    )
+    bonus_optim = None
+    if bonus_loss is not None:
+        bonus_params = [p for p in bonus_loss.parameters() if p.requires_grad]
+        bonus_optim = torch.optim.Adam(bonus_params, lr=cfg.intrinsic.lr)
+    if gae_int is not None:
+        int_reward_key = bonus_transform.normalized_reward_key or (
+            bonus_transform.intrinsic_reward_key
+        )
+        gae_int.set_keys(reward=int_reward_key)
+        if not cfg.intrinsic.episodic:
+            gae_int.set_keys(done="never_done", terminated="never_done")
+
+    stats = EpisodeStats(window=cfg.logger.episode_window)
+    history: dict[str, list] = {"frames": [], "return": [], "success": []}
+    next_eval = cfg.eval.interval_frames
+    next_ckpt = cfg.checkpoint.interval_frames
+    if ckpt:
+        model.load_state_dict(ckpt["model"])
+        optim.load_state_dict(ckpt["optim"])
+        if int_value is not None:
+            int_value.load_state_dict(ckpt["int_value"])
+        if bonus_transform is not None:
+            bonus_transform.load_state_dict(ckpt["bonus_transform"])
+            bonus_optim.load_state_dict(ckpt["bonus_optim"])
+        if env_side is not None:
+            env_side.load_state_dict(ckpt["env_side"])
+        stats.load_state_dict(ckpt["stats"])
+        history = ckpt["history"]
+        next_eval, next_ckpt = ckpt["next_eval"], ckpt["next_ckpt"]
+        set_rng_state(ckpt["rng"])
+
+    def checkpoint() -> None:
+        save_checkpoint(
+            ckpt_path,
+            {
+                "frames": frames,
+                "model": model.state_dict(),
+                "optim": optim.state_dict(),
+                "int_value": None if int_value is None else int_value.state_dict(),
+                "bonus_transform": None
+                if bonus_transform is None
+                else bonus_transform.state_dict(),
+                "bonus_optim": None
+                if bonus_optim is None
+                else bonus_optim.state_dict(),
+                "env_side": None if env_side is None else env_side.state_dict(),
+                "stats": stats.state_dict(),
+                "history": history,
+                "next_eval": next_eval,
+                "next_ckpt": next_ckpt,
+                "rng": get_rng_state(),
+            },
+        )
+
+    extra = (
+        {"project": cfg.logger.project_name} if cfg.logger.backend == "wandb" else {}
+    )
+    logger = get_logger(
+        cfg.logger.backend,
+        logger_name=str(run_dir / "logs"),
+        experiment_name="a2c",
+        **extra,
+    )
+    remaining = cfg.collector.total_frames - frames
+    if remaining <= 0:
+        print(f"Nothing to do: {frames} frames already done in {run_dir}.")
+        return
+    collector = make_collector(env, policy, cfg, total_frames=remaining)
+
+    # ---- training loop ----------------------------------------------------------
+    pbar = tqdm(
+        total=cfg.collector.total_frames, initial=frames, unit="f", desc=cfg.bonus
+    )
+    start, start_frames = time.perf_counter(), frames
+    for iteration, data in enumerate(collector):
+        frames += data.numel()
+        stats.update(data)
+
+        # Step 2: the bonus of the whole rollout, with the VAE as it was during it.
+        with torch.no_grad():
+            if bonus_transform is not None:
+                bonus_transform.train()
+                data = bonus_transform(data)
+            # Step 3: advantages on the (mixed) reward.
+            data = gae(data)
+            if gae_int is not None:
+                if not cfg.intrinsic.episodic:
+                    data["next", "never_done"] = torch.zeros_like(data["next", "done"])
+                data = gae_int(data)
+                coef = bonus_transform.current_coef()
+                data["advantage"] = data["advantage"] + coef * data["advantage_int"]
+        loss_td = loss_module(data)
+        loss = (
+            loss_td["loss_objective"] + loss_td["loss_critic"] + loss_td["loss_entropy"]
+        )
+        if int_value is not None:
+            value_int = int_value(data.select(*int_value.in_keys))["state_value_int"]
+            loss_int = (
+                cfg.loss.critic_coef
+                * (value_int - data["value_target_int"]).pow(2).mean()
+            )
+            loss = loss + loss_int
+        optim.zero_grad()
+        loss.backward()
+        grad_norm = torch.nn.utils.clip_grad_norm_(params, cfg.optim.max_grad_norm)
+        optim.step()
+
+        # Step 4: train the bonus model on the states of this rollout.
+        bonus_td = None
+        if bonus_loss is not None:
+            if env_side is not None:
+                bonus_loss.obs_rms = env_side.obs_rms
+            for _ in range(cfg.intrinsic.update_steps):
+                bonus_td = bonus_loss(data)
+                bonus_total = sum(
+                    v for k, v in bonus_td.items() if k.startswith("loss_")
+                )
+                bonus_optim.zero_grad()
+                bonus_total.backward()
+                bonus_optim.step()
+
+        pbar.update(data.numel())
+        fps = (frames - start_frames) / (time.perf_counter() - start)
+        if iteration % cfg.logger.log_interval == 0:
+            metrics = {
+                "train/episode_return": stats.mean_return,
+                "train/success_rate": stats.success_rate,
+                "train/episode_length": stats.mean_length,
+                "train/episodes": stats.episodes,
+                "train/reward": data["next", "reward"].mean().item(),
+                "train/loss_objective": loss_td["loss_objective"].item(),
+                "train/loss_critic": loss_td["loss_critic"].item(),
+                "train/loss_entropy": loss_td["loss_entropy"].item(),
+                "train/entropy": loss_td["entropy"].item(),
+                "train/grad_norm": grad_norm.item(),
+                "time/fps": fps,
+            }
+            if bonus_transform is not None:
+                next_td = data["next"]
+                metrics["train/intrinsic_reward"] = (
+                    next_td[bonus_transform.intrinsic_reward_key].mean().item()
+                )
+                if bonus_transform.normalized_reward_key is not None:
+                    metrics["train/intrinsic_reward_normalized"] = (
+                        next_td[bonus_transform.normalized_reward_key].mean().item()
+                    )
+                metrics["train/intrinsic_coef"] = bonus_transform.current_coef()
+            if bonus_td is not None:
+                for key, value in bonus_td.items():
+                    metrics[f"bonus/{key}"] = value.mean().item()
+            if int_value is not None:
+                metrics["train/loss_critic_int"] = loss_int.item()
+            if logger is not None:
+                for name, value in metrics.items():
+                    logger.log_scalar(name, value, step=frames)
+            if stats.returns:
+                history["frames"].append(frames)
+                history["return"].append(stats.mean_return)
+                history["success"].append(stats.success_rate)
+            pbar.set_postfix(fps=f"{fps:.0f}", ret=f"{stats.mean_return:.3f}")
+
+        if frames >= next_eval:
+            next_eval += cfg.eval.interval_frames
+            model.eval()
+            ret, success = evaluate(
+                eval_env, policy, cfg.eval.episodes, cfg.eval.deterministic
+            )
+            model.train()
+            if logger is not None:
+                logger.log_scalar("eval/episode_return", ret, step=frames)
+                logger.log_scalar("eval/success_rate", success, step=frames)
+        if frames >= next_ckpt:
+            next_ckpt += cfg.checkpoint.interval_frames
+            checkpoint()
+    pbar.close()
+    collector.shutdown()
+    checkpoint()
+
+    curve = plot_learning_curves(
+        {cfg.bonus: (history["frames"], history["return"])},
+        run_dir / "learning_curve.png",
+        title=f"{cfg.env.name}: A2C + {cfg.bonus} (seed {cfg.seed})",
+        ylabel=f"extrinsic return ({cfg.logger.episode_window}-episode mean)",
+    )
+    print(
+        f"Done: {frames} frames, {stats.episodes} episodes, last "
+        f"{cfg.logger.episode_window}-episode mean return {stats.mean_return:.3f}, "
+        f"success rate {stats.success_rate:.2f}, {fps:.0f} frames/s.\n"
+        f"Learning curve: {curve}\nLogs: {run_dir / 'logs'}\nRun directory: {run_dir}"
+    )
+
+
+if __name__ == "__main__":
+    main()
