@@ -1,0 +1,180 @@
+"""Runs a named set of A2C settings, resumably, and summarises them.
+
+Each setting is one run of ``main.py`` in ``<out>/<name>``. Rerunning the command
+skips finished runs and resumes killed ones from their checkpoints, so a study
+survives the machine being stopped. ``--report`` writes, for every finished run,
+the frames at which the 100-episode mean extrinsic return first reached 0.5 and
+0.8, a CSV of the curves and a figure.
+
+    python recipes/a2c_minigrid/study.py --study n3s4 --out runs/study_n3s4 --jobs 2
+    python recipes/a2c_minigrid/study.py --study n3s4 --out runs/study_n3s4 --report docs/results/n3s4
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parents[1]))
+
+from torchrl_surprise.training import (  # noqa: E402
+    load_checkpoint,
+    plot_learning_curves,
+    read_scalar_csv,
+)
+
+N3S4 = "env.name=MiniGrid-MultiRoom-N3-S4-v0"
+CRITIC = "intrinsic.intrinsic_critic=true"
+STUDIES: dict[str, dict[str, list[str]]] = {
+    # The A2C anchor: bonus=none must solve DoorKey-5x5 well under 300k frames.
+    "anchor": {"none": ["env.name=MiniGrid-DoorKey-5x5-v0", "bonus=none"]},
+    # The settings tried on MultiRoom-N3S4, in the order of docs/report.rst.
+    "n3s4": {
+        "none": [N3S4, "bonus=none"],
+        "vae_raw_c0.01": [N3S4, "bonus=vae", "intrinsic.coef=0.01"],
+        "vae_raw_c0.001": [N3S4, "bonus=vae", "intrinsic.coef=0.001"],
+        "vae_zscore_c0.01": [
+            N3S4,
+            "bonus=vae",
+            "intrinsic.normalization=zscore",
+            "intrinsic.coef=0.01",
+        ],
+        "vae_critic_nonepisodic": [
+            N3S4,
+            "bonus=vae",
+            CRITIC,
+            "intrinsic.episodic=false",
+            "intrinsic.normalization=return_std",
+            "intrinsic.coef=0.5",
+        ],
+        "icm_raw_c0.01": [N3S4, "bonus=icm", "intrinsic.coef=0.01"],
+        "rnd_critic_nonepisodic": [
+            N3S4,
+            "bonus=rnd",
+            CRITIC,
+            "intrinsic.episodic=false",
+            "intrinsic.normalization=return_std",
+            "intrinsic.coef=0.5",
+        ],
+    },
+}
+
+
+def run_state(run_dir: Path, frames: int) -> str:
+    ckpt = run_dir / "checkpoint.pt"
+    if not ckpt.exists():
+        return "new"
+    return "done" if load_checkpoint(ckpt)["frames"] >= frames else "partial"
+
+
+def launch(name: str, overrides: list[str], out: Path, frames: int, seed: int):
+    run_dir = out / name
+    state = run_state(run_dir, frames)
+    if state == "done":
+        return None
+    args = [
+        sys.executable,
+        str(HERE / "main.py"),
+        *overrides,
+        f"collector.total_frames={frames}",
+        f"seed={seed}",
+        f"hydra.run.dir={run_dir}",
+        "eval.interval_frames=100000",
+        f"resume={'true' if state == 'partial' else 'false'}",
+    ]
+    run_dir.mkdir(parents=True, exist_ok=True)
+    log = open(run_dir / "stdout.log", "a")
+    print(f"[study] {name}: {state} -> running", flush=True)
+    return subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT)
+
+
+def first_reached(steps, values, threshold: float) -> int | None:
+    for step, value in zip(steps, values):
+        if value >= threshold:
+            return int(step)
+    return None
+
+
+def report(settings: dict[str, list[str]], out: Path, dest: Path, frames: int) -> None:
+    dest.mkdir(parents=True, exist_ok=True)
+    curves, rows = {}, []
+    for name in settings:
+        path = out / name / "logs" / "a2c" / "scalars" / "train" / "episode_return.csv"
+        if not path.exists():
+            continue
+        steps, values = read_scalar_csv(path)
+        ok = values == values  # drop NaN (no finished episode yet)
+        steps, values = steps[ok], values[ok]
+        curves[name] = (steps, values)
+        fps_steps, fps = read_scalar_csv(path.parents[1] / "time" / "fps.csv")
+        rows.append(
+            {
+                "setting": name,
+                "frames": int(steps[-1]) if len(steps) else 0,
+                "final_return": round(float(values[-1]), 3) if len(values) else "",
+                "best_return": round(float(values.max()), 3) if len(values) else "",
+                "frames_to_0.5": first_reached(steps, values, 0.5) or "not reached",
+                "frames_to_0.8": first_reached(steps, values, 0.8) or "not reached",
+                "fps": int(fps[len(fps) // 2 :].mean()) if len(fps) else "",
+            }
+        )
+    with open(dest / "summary.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    with open(dest / "curves.csv", "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["setting", "frames", "mean_return_100_episodes"])
+        for name, (steps, values) in curves.items():
+            writer.writerows(
+                [name, int(s), round(float(v), 4)] for s, v in zip(steps, values)
+            )
+    plot_learning_curves(
+        curves,
+        dest / "curves.png",
+        title=f"{out.name}: 100-episode mean extrinsic return",
+    )
+    for row in rows:
+        print(row)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--study", default="n3s4", choices=sorted(STUDIES))
+    parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--frames", type=int, default=1_000_000)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--jobs", type=int, default=2, help="runs at once (2 cores)")
+    parser.add_argument("--only", nargs="*", help="a subset of the study's settings")
+    parser.add_argument("--report", type=Path, help="write the summary here instead")
+    args = parser.parse_args()
+    settings = STUDIES[args.study]
+    if args.only:
+        unknown = set(args.only) - set(settings)
+        if unknown:
+            parser.error(
+                f"unknown settings {sorted(unknown)}; known: {sorted(settings)}"
+            )
+        settings = {k: v for k, v in settings.items() if k in args.only}
+    if args.report:
+        report(settings, args.out, args.report, args.frames)
+        return
+    queue = list(settings.items())
+    running: list[subprocess.Popen] = []
+    while queue or running:
+        running = [p for p in running if p.poll() is None]
+        while queue and len(running) < args.jobs:
+            name, overrides = queue.pop(0)
+            proc = launch(name, overrides, args.out, args.frames, args.seed)
+            if proc is not None:
+                running.append(proc)
+        time.sleep(2)
+
+
+if __name__ == "__main__":
+    main()
