@@ -77,7 +77,9 @@ def make_env(cfg, num_envs: int, seed: int, bonus: str = "none", rnd=None):
     env = make_minigrid_env(cfg.env.name, num_envs=num_envs)
     transforms = []
     if cfg.env.stochasticity:
-        transforms.append(StochasticityTransform.from_level(cfg.env.stochasticity))
+        # Transforms are not seeded by env.set_seed in TorchRL 0.14: seed it here.
+        noise = StochasticityTransform.from_level(cfg.env.stochasticity, seed=seed + 1)
+        transforms.append(noise)
     # RewardSum sees the env's reward: the extrinsic return is what is logged.
     transforms += [RewardSum(), StepCounter()]
     if bonus == "rnd":
