@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import os
 import subprocess
 import sys
 import time
@@ -29,7 +30,14 @@ from torchrl_surprise.training import (  # noqa: E402
 )
 
 N3S4 = "env.name=MiniGrid-MultiRoom-N3-S4-v0"
-CRITIC = "intrinsic.intrinsic_critic=true"
+# RND's recipe: a second value head for non-episodic intrinsic returns, the bonus
+# divided by the running std of its discounted return.
+NONEPISODIC = [
+    "intrinsic.intrinsic_critic=true",
+    "intrinsic.episodic=false",
+    "intrinsic.normalization=return_std",
+    "intrinsic.coef=0.5",
+]
 STUDIES: dict[str, dict[str, list[str]]] = {
     # The A2C anchor: bonus=none must solve DoorKey-5x5 well under 300k frames.
     "anchor": {"none": ["env.name=MiniGrid-DoorKey-5x5-v0", "bonus=none"]},
@@ -37,35 +45,32 @@ STUDIES: dict[str, dict[str, list[str]]] = {
     "n3s4": {
         "none": [N3S4, "bonus=none"],
         "vae_raw_c0.01": [N3S4, "bonus=vae", "intrinsic.coef=0.01"],
-        "vae_raw_c0.001": [N3S4, "bonus=vae", "intrinsic.coef=0.001"],
+        "vae_critic_nonepisodic": [N3S4, "bonus=vae", *NONEPISODIC],
         "vae_zscore_c0.01": [
             N3S4,
             "bonus=vae",
             "intrinsic.normalization=zscore",
             "intrinsic.coef=0.01",
         ],
-        "vae_critic_nonepisodic": [
-            N3S4,
-            "bonus=vae",
-            CRITIC,
-            "intrinsic.episodic=false",
-            "intrinsic.normalization=return_std",
-            "intrinsic.coef=0.5",
-        ],
+        "rnd_critic_nonepisodic": [N3S4, "bonus=rnd", *NONEPISODIC],
+        "icm_critic_nonepisodic": [N3S4, "bonus=icm", *NONEPISODIC],
         "icm_raw_c0.01": [N3S4, "bonus=icm", "intrinsic.coef=0.01"],
-        "rnd_critic_nonepisodic": [
-            N3S4,
-            "bonus=rnd",
-            CRITIC,
-            "intrinsic.episodic=false",
-            "intrinsic.normalization=return_std",
-            "intrinsic.coef=0.5",
-        ],
+        "vae_raw_c0.001": [N3S4, "bonus=vae", "intrinsic.coef=0.001"],
     },
 }
 
 
+def _alive(pid_file: Path) -> bool:
+    try:
+        os.kill(int(pid_file.read_text()), 0)
+    except (FileNotFoundError, ValueError, ProcessLookupError):
+        return False
+    return True
+
+
 def run_state(run_dir: Path, frames: int) -> str:
+    if _alive(run_dir / "pid"):
+        return "running"
     ckpt = run_dir / "checkpoint.pt"
     if not ckpt.exists():
         return "new"
@@ -75,7 +80,7 @@ def run_state(run_dir: Path, frames: int) -> str:
 def launch(name: str, overrides: list[str], out: Path, frames: int, seed: int):
     run_dir = out / name
     state = run_state(run_dir, frames)
-    if state == "done":
+    if state in ("done", "running"):
         return None
     args = [
         sys.executable,
@@ -90,7 +95,9 @@ def launch(name: str, overrides: list[str], out: Path, frames: int, seed: int):
     run_dir.mkdir(parents=True, exist_ok=True)
     log = open(run_dir / "stdout.log", "a")
     print(f"[study] {name}: {state} -> running", flush=True)
-    return subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT)
+    proc = subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT)
+    (run_dir / "pid").write_text(str(proc.pid))
+    return proc
 
 
 def first_reached(steps, values, threshold: float) -> int | None:
@@ -168,7 +175,11 @@ def main() -> None:
     running: list[subprocess.Popen] = []
     while queue or running:
         running = [p for p in running if p.poll() is None]
-        while queue and len(running) < args.jobs:
+        # Runs started by an earlier (killed) driver still hold a core.
+        elsewhere = sum(
+            run_state(args.out / name, args.frames) == "running" for name in settings
+        ) - len(running)
+        while queue and len(running) + elsewhere < args.jobs:
             name, overrides = queue.pop(0)
             proc = launch(name, overrides, args.out, args.frames, args.seed)
             if proc is not None:
