@@ -71,7 +71,13 @@ class ICMModel(nn.Module):
     def for_minigrid(
         cls, num_actions: int = 7, hidden_dim: int = 256, use_direction: bool = True
     ) -> ICMModel:
-        """ICM on MiniGrid's symbolic grid (``"image"``, ``"direction"``)."""
+        """ICM on MiniGrid's symbolic grid (``"image"``, ``"direction"``).
+
+        Args:
+            num_actions (int): number of discrete actions.
+            hidden_dim (int): width of the encoder and the models.
+            use_direction (bool): also encode the direction.
+        """
         return cls(
             MiniGridEncoder(hidden_dim=hidden_dim, use_direction=use_direction),
             num_actions,
@@ -84,7 +90,13 @@ class ICMModel(nn.Module):
     def for_vector(
         cls, obs_dim: int, action_dim: int, hidden_dim: int = 256
     ) -> ICMModel:
-        """ICM on flat observations with continuous actions."""
+        """ICM on flat observations with continuous actions.
+
+        Args:
+            obs_dim (int): observation size.
+            action_dim (int): action size.
+            hidden_dim (int): width of the encoder and the models.
+        """
         return cls(
             VectorEncoder(obs_dim, hidden_dim=hidden_dim),
             action_dim,
@@ -121,6 +133,7 @@ class ICMModel(nn.Module):
         return action.float()
 
     def features(self, observations: Sequence[torch.Tensor]) -> torch.Tensor:
+        """``phi(s)`` for the observation tensors of ``s``."""
         return self.encoder(*observations)
 
     def forward_error(

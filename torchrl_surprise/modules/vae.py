@@ -165,6 +165,7 @@ class MiniGridEncoder(nn.Module):
     def forward(
         self, image: torch.Tensor, direction: torch.Tensor | None = None
     ) -> torch.Tensor:
+        """Features ``[..., hidden_dim]`` of ``image`` ``[..., 7, 7, 3]`` (ids)."""
         idx = self._indices(image, direction)
         batch = idx.shape[:-1]
         out = self.embedding(idx.reshape(-1, idx.shape[-1])) + self.bias
@@ -265,6 +266,7 @@ class VectorEncoder(nn.Module):
         self.net = nn.Sequential(*layers)
 
     def forward(self, observation: torch.Tensor) -> torch.Tensor:
+        """Features ``[..., hidden_dim]`` of ``observation`` ``[..., obs_dim]``."""
         _check_floating("observation", observation, (self.obs_dim,))
         return self.net(observation)
 
@@ -372,6 +374,13 @@ class StateVAE(nn.Module):
     ) -> StateVAE:
         """A VAE for MiniGrid's symbolic grid (``"image"``) and ``"direction"``.
 
+        Args:
+            latent_dim (int): size of ``z``.
+            hidden_dim (int): width of the encoder and decoder.
+            use_direction (bool): also encode and reconstruct the direction.
+            in_keys (sequence of NestedKey, optional): observation keys; defaults
+                to ``["image", "direction"]`` (``["image"]`` without direction).
+
         Examples:
             >>> import torch
             >>> vae = StateVAE.for_minigrid(latent_dim=8, hidden_dim=32)
@@ -400,7 +409,14 @@ class StateVAE(nn.Module):
         hidden_dim: int = 256,
         in_keys: Sequence[NestedKey] = ("observation",),
     ) -> StateVAE:
-        """A VAE for flat float observations with a Gaussian decoder."""
+        """A VAE for flat float observations with a Gaussian decoder.
+
+        Args:
+            obs_dim (int): observation size.
+            latent_dim (int): size of ``z``.
+            hidden_dim (int): width of the encoder and decoder.
+            in_keys (sequence of NestedKey): observation key(s).
+        """
         return cls(
             VectorEncoder(obs_dim, hidden_dim=hidden_dim),
             GaussianVectorDecoder(latent_dim, obs_dim, hidden_dim=hidden_dim),

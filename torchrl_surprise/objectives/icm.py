@@ -76,6 +76,7 @@ class ICMLoss(LossModule):
         self.set_keys(observations=tuple(icm.in_keys))
 
     def set_keys(self, **kwargs) -> None:
+        """Sets tensordict keys; ``observations`` takes one key or a sequence."""
         if "observations" in kwargs and kwargs["observations"] is not None:
             obs = kwargs["observations"]
             if isinstance(obs, str):
@@ -88,6 +89,7 @@ class ICMLoss(LossModule):
 
     @property
     def in_keys(self) -> list[NestedKey]:
+        """The keys the loss reads."""
         obs = list(self.tensor_keys.observations)
         nxt = [("next", *_as_tuple(k)) for k in obs]
         return obs + nxt + [self.tensor_keys.action]
@@ -100,6 +102,7 @@ class ICMLoss(LossModule):
         return loss
 
     def forward(self, tensordict: TensorDictBase = None, **kwargs) -> TensorDictBase:
+        """Computes the losses on a batch (a TensorDict, or the keys as keywords)."""
         if tensordict is None:
             tensordict = TensorDict(kwargs)
         keys = self.tensor_keys.observations

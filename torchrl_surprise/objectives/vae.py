@@ -91,6 +91,7 @@ class VAELoss(LossModule):
         self.set_keys(observations=tuple(("next", *_as_tuple(k)) for k in vae.in_keys))
 
     def set_keys(self, **kwargs) -> None:
+        """Sets tensordict keys; ``observations`` takes one key or a sequence."""
         if "observations" in kwargs and kwargs["observations"] is not None:
             obs = kwargs["observations"]
             if isinstance(obs, str):
@@ -103,9 +104,11 @@ class VAELoss(LossModule):
 
     @property
     def in_keys(self) -> list[NestedKey]:
+        """The keys the loss reads."""
         return list(self.tensor_keys.observations)
 
     def forward(self, tensordict: TensorDictBase = None, **kwargs) -> TensorDictBase:
+        """Computes the losses on a batch (a TensorDict, or the keys as keywords)."""
         if tensordict is None:
             tensordict = TensorDict(kwargs)
         observations = _read(self, tensordict, self.tensor_keys.observations)

@@ -7,6 +7,10 @@ from torchrl_surprise.transforms.base import (
 )
 from torchrl_surprise.transforms.icm import ICMTransform
 from torchrl_surprise.transforms.precomputed import PrecomputedBonusTransform
+from torchrl_surprise.transforms.stochasticity import (
+    STOCHASTICITY_LEVELS,
+    StochasticityTransform,
+)
 from torchrl_surprise.transforms.vae_surprise import VAESurpriseTransform
 
 __all__ = [
@@ -15,5 +19,7 @@ __all__ = [
     "LinearSchedule",
     "NORMALIZATIONS",
     "PrecomputedBonusTransform",
+    "STOCHASTICITY_LEVELS",
+    "StochasticityTransform",
     "VAESurpriseTransform",
 ]

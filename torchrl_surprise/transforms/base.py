@@ -199,6 +199,7 @@ class IntrinsicRewardTransform(Transform):
 
     @property
     def frozen(self) -> bool:
+        """Whether the statistics are frozen."""
         return self._frozen
 
     def frozen_copy(self) -> IntrinsicRewardTransform:
@@ -377,6 +378,7 @@ class IntrinsicRewardTransform(Transform):
 
     # ---------------------------------------------------------------- specs
     def transform_reward_spec(self, reward_spec: Composite) -> Composite:
+        """Declares the bonus entries (and the kept extrinsic reward) as rewards."""
         shape, device = reward_spec.shape, reward_spec.device
         if self.reward_key is not None:
             if self.reward_key not in reward_spec.keys(True, True):
