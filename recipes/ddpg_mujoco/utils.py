@@ -1,0 +1,344 @@
+"""Builders for the DDPG MuJoCo recipe: envs, actor and critic, loss, buffer, bonus."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from tensordict.nn import TensorDictModule, TensorDictSequential
+from torchrl.collectors import Collector
+from torchrl.data import Composite, LazyTensorStorage, TensorDictReplayBuffer, Unbounded
+from torchrl.envs import Compose, InitTracker, RewardSum, StepCounter
+from torchrl.envs.transforms import Transform
+from torchrl.envs.transforms.rnd import RunningMeanStd
+from torchrl.modules import (
+    MLP,
+    AdditiveGaussianModule,
+    OrnsteinUhlenbeckProcessModule,
+    TanhModule,
+    ValueOperator,
+)
+from torchrl.objectives import DDPGLoss, SoftUpdate
+
+from torchrl_surprise import LinearSchedule, StateVAE, VAELoss, VAESurpriseTransform
+from torchrl_surprise.envs import make_mujoco_env
+from torchrl_surprise.transforms import NORMALIZATIONS
+
+BONUSES = ("none", "vae")
+BONUS_AT = ("sample", "collection")
+NOISES = ("gaussian", "ou")
+OBS_KEY = "observation"
+OBS_NORM_KEY = "observation_norm"
+
+#: What a transition keeps in the replay buffer (the bonus keys are added when
+#: the bonus is stored at collection time). The normalised observation is not
+#: stored: it is recomputed on every sample with the current statistics.
+REPLAY_KEYS = (
+    OBS_KEY,
+    "action",
+    ("next", OBS_KEY),
+    ("next", "reward"),
+    ("next", "done"),
+    ("next", "terminated"),
+)
+
+
+def check_config(cfg) -> None:
+    """Fails early, naming the value, on a config the recipe cannot run."""
+    if cfg.bonus not in BONUSES:
+        raise ValueError(f"bonus must be one of {BONUSES}, got {cfg.bonus!r}.")
+    icfg = cfg.intrinsic
+    if icfg.bonus_at not in BONUS_AT:
+        raise ValueError(
+            f"intrinsic.bonus_at must be one of {BONUS_AT}, got {icfg.bonus_at!r}."
+        )
+    if icfg.normalization not in NORMALIZATIONS:
+        raise ValueError(
+            f"intrinsic.normalization must be one of {NORMALIZATIONS}, got "
+            f"{icfg.normalization!r}."
+        )
+    if icfg.normalization == "return_std" and icfg.bonus_at == "sample":
+        raise ValueError(
+            "intrinsic.normalization=return_std needs whole trajectories (a time "
+            "dimension) and replay samples are single transitions: use it with "
+            "intrinsic.bonus_at=collection, or pick reward_std / zscore / none."
+        )
+    if cfg.exploration.noise not in NOISES:
+        raise ValueError(
+            f"exploration.noise must be one of {NOISES}, got {cfg.exploration.noise!r}."
+        )
+    positive = {
+        "env.num_envs": cfg.env.num_envs,
+        "collector.total_frames": cfg.collector.total_frames,
+        "collector.frames_per_batch": cfg.collector.frames_per_batch,
+        "replay_buffer.size": cfg.replay_buffer.size,
+        "optim.batch_size": cfg.optim.batch_size,
+        "optim.utd_ratio": cfg.optim.utd_ratio,
+        "optim.actor_lr": cfg.optim.actor_lr,
+        "optim.critic_lr": cfg.optim.critic_lr,
+        "optim.tau": cfg.optim.tau,
+        "intrinsic.lr": icfg.lr,
+        "intrinsic.batch_size": icfg.batch_size,
+        "intrinsic.update_every": icfg.update_every,
+        "eval.interval_frames": cfg.eval.interval_frames,
+        "eval.episodes": cfg.eval.episodes,
+        "eval.num_envs": cfg.eval.num_envs,
+        "checkpoint.interval_frames": cfg.checkpoint.interval_frames,
+        "logger.log_interval": cfg.logger.log_interval,
+    }
+    for name, value in positive.items():
+        if isinstance(value, bool) or not (
+            isinstance(value, (int, float)) and value > 0
+        ):
+            raise ValueError(f"{name} must be a positive number, got {value!r}.")
+    if cfg.collector.frames_per_batch % cfg.env.num_envs:
+        raise ValueError(
+            f"collector.frames_per_batch ({cfg.collector.frames_per_batch}) must be a "
+            f"multiple of env.num_envs ({cfg.env.num_envs})."
+        )
+    if cfg.collector.init_random_frames < 0 or icfg.warmup_frames < 0:
+        raise ValueError(
+            "collector.init_random_frames and intrinsic.warmup_frames must be >= 0."
+        )
+    # Whole batches only: a resumed run then stops exactly at total_frames.
+    for name in ("total_frames", "init_random_frames"):
+        if cfg.collector[name] % cfg.collector.frames_per_batch:
+            raise ValueError(
+                f"collector.{name} ({cfg.collector[name]}) must be a multiple of "
+                f"collector.frames_per_batch ({cfg.collector.frames_per_batch})."
+            )
+    if not 0.0 <= cfg.optim.gamma <= 1.0 or not cfg.optim.tau <= 1.0:
+        raise ValueError("optim.gamma must be in [0, 1] and optim.tau in (0, 1].")
+    if not math.isfinite(icfg.coef):
+        raise ValueError(f"intrinsic.coef must be finite, got {icfg.coef}.")
+    if cfg.obs_norm.clip is not None and cfg.obs_norm.clip <= 0:
+        raise ValueError(f"obs_norm.clip must be positive, got {cfg.obs_norm.clip}.")
+
+
+def make_env(cfg, num_envs: int, seed: int):
+    """A gymnasium MuJoCo env in TorchRL with extrinsic episode statistics."""
+    env = make_mujoco_env(cfg.env.name, num_envs=num_envs)
+    # RewardSum sees the env's reward: the bonus is mixed in later, on batches, so
+    # the logged episode return is the task's. InitTracker resets the OU noise.
+    env.append_transform(Compose(InitTracker(), RewardSum(), StepCounter()))
+    env.set_seed(seed)
+    return env
+
+
+class ObservationNormalizer(Transform):
+    """Writes ``clip((obs - mean) / std)`` under its own key, at the root and in "next".
+
+    The running statistics (TorchRL's ``RunningMeanStd``, in ``state_dict``) change
+    only through :meth:`update`, which the training loop calls on each collected
+    batch. Reading never changes them, so an env step and a replay-buffer sample
+    with the same statistics give the same normalised observation.
+
+    Args:
+        obs_dim (int): size of the flat observation.
+        in_key (NestedKey): the raw observation.
+        out_key (NestedKey): where the normalised copy is written.
+        clip (float, optional): clip the normalised values to ``[-clip, clip]``.
+
+    Examples:
+        >>> from tensordict import TensorDict
+        >>> norm = ObservationNormalizer(3)
+        >>> norm.update(torch.randn(100, 3) * 4 + 2)
+        >>> td = TensorDict({"observation": torch.zeros(5, 3),
+        ...                  "next": {"observation": torch.ones(5, 3)}}, [5])
+        >>> td = norm(td)
+        >>> td["next", "observation_norm"].shape
+        torch.Size([5, 3])
+    """
+
+    def __init__(
+        self,
+        obs_dim: int,
+        in_key=OBS_KEY,
+        out_key=OBS_NORM_KEY,
+        clip: float | None = 5.0,
+    ):
+        super().__init__(in_keys=[in_key], out_keys=[out_key])
+        self.rms = RunningMeanStd(shape=(obs_dim,))
+        self.clip = clip
+
+    @torch.no_grad()
+    def update(self, observations: torch.Tensor) -> None:
+        if not torch.isfinite(observations).all():
+            raise ValueError(
+                "ObservationNormalizer: the collected observations contain NaN or inf."
+            )
+        self.rms.update(observations)
+
+    def _apply_transform(self, obs: torch.Tensor) -> torch.Tensor:
+        out = self.rms.normalize(obs)
+        if self.clip is not None:
+            out = out.clamp(-self.clip, self.clip)
+        return out
+
+    def _reset(self, tensordict, tensordict_reset):
+        return self._call(tensordict_reset)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        self._call(tensordict)
+        next_tensordict = tensordict.get("next", None)
+        if next_tensordict is not None:
+            self._call(next_tensordict)
+        return tensordict
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        for in_key, out_key in zip(self.in_keys, self.out_keys):
+            ref = observation_spec[in_key]
+            observation_spec[out_key] = Unbounded(
+                shape=ref.shape, device=ref.device, dtype=torch.float32
+            )
+        return observation_spec
+
+
+def make_ddpg(cfg, env):
+    """Actor (MLP + tanh to the action bounds), critic Q(s, a), loss, target updater.
+
+    Returns ``(actor, exploration_policy, noise_module, loss, target_updater)``.
+    """
+    action_spec = env.action_spec_unbatched
+    obs_dim = env.observation_spec[OBS_KEY].shape[-1]
+    act_dim = action_spec.shape[-1]
+    hidden = list(cfg.network.hidden_sizes)
+    actor = TensorDictSequential(
+        TensorDictModule(
+            MLP(
+                in_features=obs_dim,
+                out_features=act_dim,
+                num_cells=hidden,
+                activation_class=torch.nn.ReLU,
+            ),
+            in_keys=[OBS_KEY],
+            out_keys=["param"],
+        ),
+        TanhModule(in_keys=["param"], out_keys=["action"], spec=action_spec),
+    )
+    critic = ValueOperator(
+        MLP(
+            in_features=obs_dim + act_dim,
+            out_features=1,
+            num_cells=hidden,
+            activation_class=torch.nn.ReLU,
+        ),
+        in_keys=[OBS_KEY, "action"],
+    )
+    ecfg = cfg.exploration
+    if ecfg.noise == "gaussian":
+        # Constant sigma: a + N(0, std^2) projected onto the bounds; std is
+        # gaussian_std times each dimension's half range (OurDDPG: 0.1 * max_action).
+        noise = AdditiveGaussianModule(
+            spec=action_spec,
+            sigma_init=1.0,
+            sigma_end=1.0,
+            mean=0.0,
+            std=1.0,
+            safe=False,  # it projects onto the spec itself
+        )
+        half_range = (action_spec.space.high - action_spec.space.low) / 2
+        noise.std = float(ecfg.gaussian_std) * half_range.float()
+    else:
+        noise = OrnsteinUhlenbeckProcessModule(
+            spec=action_spec,
+            eps_init=1.0,
+            eps_end=1.0,
+            theta=float(ecfg.ou_theta),
+            sigma=float(ecfg.ou_sigma),
+            dt=float(ecfg.ou_dt),
+        )
+    policy = TensorDictSequential(actor, noise)
+    loss = DDPGLoss(
+        actor,
+        critic,
+        loss_function="l2",
+        delay_actor=False,
+        delay_value=True,
+    )
+    loss.make_value_estimator(gamma=cfg.optim.gamma)
+    target_updater = SoftUpdate(loss, tau=cfg.optim.tau)
+    return actor, policy, noise, loss, target_updater
+
+
+def make_bonus(cfg, obs_dim: int):
+    """The VAE bonus on normalised observations: ``(transform, vae_loss)`` or Nones."""
+    if cfg.bonus == "none":
+        return None, None
+    icfg = cfg.intrinsic
+    schedule = None
+    if icfg.warmup_frames or icfg.coef_end is not None:
+        end = icfg.coef if icfg.coef_end is None else icfg.coef_end
+        schedule = LinearSchedule(
+            start=icfg.coef,
+            end=end,
+            frames=int(icfg.anneal_frames),
+            delay=int(icfg.warmup_frames),
+        )
+    vae = StateVAE.for_vector(
+        obs_dim,
+        latent_dim=icfg.vae.latent_dim,
+        hidden_dim=icfg.vae.hidden_dim,
+        in_keys=[OBS_NORM_KEY],
+    )
+    transform = VAESurpriseTransform(
+        vae,
+        coef=icfg.coef,
+        coef_schedule=schedule,
+        normalization=icfg.normalization,
+        gamma=cfg.optim.gamma,
+        clip=icfg.clip,
+    )
+    loss = VAELoss(vae, kl_weight=icfg.vae.kl_weight)
+    return transform, loss
+
+
+def replay_keys(bonus_transform, bonus_at: str) -> list:
+    """The keys a transition keeps in the buffer (plus the bonus when stored)."""
+    keys = list(REPLAY_KEYS)
+    if bonus_transform is not None and bonus_at == "collection":
+        keys += [("next", key) for key in _bonus_keys(bonus_transform)]
+    return keys
+
+
+def _bonus_keys(transform) -> list:
+    keys = [transform.intrinsic_reward_key, transform.extrinsic_reward_key]
+    if transform.normalized_reward_key is not None:
+        keys.append(transform.normalized_reward_key)
+    return keys
+
+
+def make_replay_buffer(size: int) -> TensorDictReplayBuffer:
+    """Uniform replay over a preallocated tensor storage (sampled with replacement)."""
+    return TensorDictReplayBuffer(storage=LazyTensorStorage(int(size)))
+
+
+def replay_buffer_state(buffer: TensorDictReplayBuffer) -> dict:
+    """The filled part of the buffer and its write cursor (not the empty slots)."""
+    n = len(buffer)
+    data = buffer.storage.get(torch.arange(n)).clone() if n else None
+    return {
+        "data": None if data is None else data.to_dict(),
+        "size": n,
+        "writer": buffer._writer.state_dict(),
+    }
+
+
+def load_replay_buffer_state(buffer: TensorDictReplayBuffer, state: dict) -> None:
+    """Refills an empty buffer from :func:`replay_buffer_state`."""
+    if state["size"]:
+        data = TensorDict.from_dict(state["data"], batch_size=[state["size"]])
+        buffer.extend(data)
+    buffer._writer.load_state_dict(state["writer"])
+
+
+def make_collector(env, policy, cfg, total_frames: int, init_random_frames: int):
+    return Collector(
+        env,
+        policy,
+        frames_per_batch=cfg.collector.frames_per_batch,
+        total_frames=total_frames,
+        init_random_frames=init_random_frames,
+        auto_register_policy_transforms=False,
+    )
