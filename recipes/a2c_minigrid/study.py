@@ -30,6 +30,12 @@ from torchrl_surprise.training import (  # noqa: E402
 )
 
 N3S4 = "env.name=MiniGrid-MultiRoom-N3-S4-v0"
+# The paper's literal form: one critic on r_ext + coef * r_int.
+RAW = [
+    "intrinsic.intrinsic_critic=false",
+    "intrinsic.episodic=true",
+    "intrinsic.normalization=none",
+]
 # RND's recipe: a second value head for non-episodic intrinsic returns, the bonus
 # divided by the running std of its discounted return.
 NONEPISODIC = [
@@ -44,18 +50,19 @@ STUDIES: dict[str, dict[str, list[str]]] = {
     # The settings tried on MultiRoom-N3S4, in the order of docs/report.rst.
     "n3s4": {
         "none": [N3S4, "bonus=none"],
-        "vae_raw_c0.01": [N3S4, "bonus=vae", "intrinsic.coef=0.01"],
+        "vae_raw_c0.01": [N3S4, "bonus=vae", *RAW, "intrinsic.coef=0.01"],
         "vae_critic_nonepisodic": [N3S4, "bonus=vae", *NONEPISODIC],
         "vae_zscore_c0.01": [
             N3S4,
             "bonus=vae",
+            *RAW,
             "intrinsic.normalization=zscore",
             "intrinsic.coef=0.01",
         ],
         "rnd_critic_nonepisodic": [N3S4, "bonus=rnd", *NONEPISODIC],
         "icm_critic_nonepisodic": [N3S4, "bonus=icm", *NONEPISODIC],
-        "icm_raw_c0.01": [N3S4, "bonus=icm", "intrinsic.coef=0.01"],
-        "vae_raw_c0.001": [N3S4, "bonus=vae", "intrinsic.coef=0.001"],
+        "icm_raw_c0.01": [N3S4, "bonus=icm", *RAW, "intrinsic.coef=0.01"],
+        "vae_raw_c0.001": [N3S4, "bonus=vae", *RAW, "intrinsic.coef=0.001"],
     },
 }
 
