@@ -204,7 +204,7 @@ def plot_learning_curves(
 
     fig, ax = plt.subplots(figsize=(6, 4))
     for name, (x, y) in curves.items():
-        ax.plot(x, y, label=name)
+        ax.plot(x, y, label=name, marker="." if len(x) < 50 else None)
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     if title:

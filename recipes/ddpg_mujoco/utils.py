@@ -284,6 +284,8 @@ def make_bonus(cfg, obs_dim: int):
     )
     transform = VAESurpriseTransform(
         vae,
+        # Replay samples are not new frames: the loop drives the counter.
+        count_frames=False,
         coef=icfg.coef,
         coef_schedule=schedule,
         normalization=icfg.normalization,

@@ -110,6 +110,10 @@ class IntrinsicRewardTransform(Transform):
         clip (float, optional): clip the normalised bonus to ``[-clip, clip]``.
         time_dim (int, optional): the time dimension of batches for
             ``"return_std"`` when it is not named ``"time"``.
+        count_frames (bool): advance the schedule's frame counter by the number
+            of transitions of every call in training mode. Set it to ``False``
+            when the transform recomputes bonuses of replay-buffer samples (which
+            are not new frames) and drive the counter with :meth:`set_frames`.
     """
 
     def __init__(
@@ -125,6 +129,7 @@ class IntrinsicRewardTransform(Transform):
         gamma: float = 0.99,
         clip: float | None = None,
         time_dim: int | None = None,
+        count_frames: bool = True,
     ):
         if isinstance(in_keys, str):
             in_keys = [in_keys]
@@ -151,6 +156,7 @@ class IntrinsicRewardTransform(Transform):
         self.gamma = gamma
         self.clip = clip
         self.time_dim = time_dim
+        self.count_frames = count_frames
         self._frozen = False
         self.reward_rms = RunningMeanStd(shape=())
         self.register_buffer("frames", torch.zeros((), dtype=torch.long))
@@ -329,16 +335,15 @@ class IntrinsicRewardTransform(Transform):
         if time_dim is not None and time_dim < 0:
             time_dim = next_tensordict.ndim + time_dim
         normalized = self._normalize(bonus, time_dim)
-        if self._updating:
+        coef = self.current_coef()
+        if self._updating and self.count_frames:
             self.frames += next_tensordict.numel()
         next_tensordict.set(self.intrinsic_reward_key, bonus)
         if self.normalized_reward_key is not None:
             next_tensordict.set(self.normalized_reward_key, normalized)
         if reward is not None:
             next_tensordict.set(self.extrinsic_reward_key, reward)
-            next_tensordict.set(
-                self.reward_key, reward + self.current_coef() * normalized
-            )
+            next_tensordict.set(self.reward_key, reward + coef * normalized)
         return next_tensordict
 
     def _step(
