@@ -268,7 +268,8 @@ class VectorEncoder(nn.Module):
     def forward(self, observation: torch.Tensor) -> torch.Tensor:
         """Features ``[..., hidden_dim]`` of ``observation`` ``[..., obs_dim]``."""
         _check_floating("observation", observation, (self.obs_dim,))
-        return self.net(observation)
+        # float64 observations (MuJoCo's native dtype) are accepted.
+        return self.net(observation.to(self.net[0].weight.dtype))
 
 
 class GaussianVectorDecoder(nn.Module):

@@ -89,9 +89,11 @@ class IntrinsicRewardTransform(Transform):
       in an env is one time step; a batch must have a dimension named ``"time"``
       (TorchRL's collectors name it) or ``time_dim`` set.
 
-    Statistics are updated only in training mode and while not frozen
-    (:meth:`freeze`, :meth:`frozen_copy`); they are buffers, so they are part of
-    ``state_dict``.
+    Statistics (and the schedule's frame counter) are updated on every call until
+    the transform is frozen (:meth:`freeze`; :meth:`frozen_copy` for evaluation),
+    as for TorchRL's ``VecNormV2``: not by ``train()``/``eval()``, which TorchRL
+    sets on its own when it attaches a transform to an env or a buffer. They are
+    buffers, so they are part of ``state_dict``.
 
     Args:
         in_keys (sequence of NestedKey): observation keys the bonus reads.
@@ -103,7 +105,7 @@ class IntrinsicRewardTransform(Transform):
         extrinsic_reward_key (NestedKey): where the extrinsic reward is kept.
         coef (float): the mixing coefficient ``beta`` when no schedule is given.
         coef_schedule (callable, optional): ``frames -> coef``, evaluated at the
-            number of transitions this transform has processed in training mode
+            number of transitions this transform has processed while not frozen
             (see :meth:`set_frames`), e.g. :class:`LinearSchedule`.
         normalization (str): one of :data:`NORMALIZATIONS`.
         gamma (float): discount of the intrinsic return for ``"return_std"``.
@@ -111,7 +113,7 @@ class IntrinsicRewardTransform(Transform):
         time_dim (int, optional): the time dimension of batches for
             ``"return_std"`` when it is not named ``"time"``.
         count_frames (bool): advance the schedule's frame counter by the number
-            of transitions of every call in training mode. Set it to ``False``
+            of transitions of every call while not frozen. Set it to ``False``
             when the transform recomputes bonuses of replay-buffer samples (which
             are not new frames) and drive the counter with :meth:`set_frames`.
     """
@@ -199,7 +201,7 @@ class IntrinsicRewardTransform(Transform):
         return self
 
     def unfreeze(self) -> IntrinsicRewardTransform:
-        """Resumes updating the statistics in training mode."""
+        """Resumes updating the statistics."""
         self._frozen = False
         return self
 
@@ -225,7 +227,11 @@ class IntrinsicRewardTransform(Transform):
 
     @property
     def _updating(self) -> bool:
-        return self.training and not self._frozen
+        # Not gated on ``self.training``: TorchRL calls ``eval()`` on every
+        # transform it attaches (TransformedEnv, Compose.append, replay buffers),
+        # which would silently freeze the statistics inside an env. As VecNormV2,
+        # only ``freeze()`` stops the updates.
+        return not self._frozen
 
     # -------------------------------------------------------------- reading
     def _observations(
@@ -385,6 +391,7 @@ class IntrinsicRewardTransform(Transform):
     def transform_reward_spec(self, reward_spec: Composite) -> Composite:
         """Declares the bonus entries (and the kept extrinsic reward) as rewards."""
         shape, device = reward_spec.shape, reward_spec.device
+        dtype = torch.float32
         if self.reward_key is not None:
             if self.reward_key not in reward_spec.keys(True, True):
                 raise KeyError(
@@ -393,15 +400,14 @@ class IntrinsicRewardTransform(Transform):
                     f"{list(reward_spec.keys(True, True))}."
                 )
             reference = reward_spec[self.reward_key]
-            shape, device = reference.shape, reference.device
+            # The bonus is written in the reward's dtype.
+            shape, device, dtype = reference.shape, reference.device, reference.dtype
             reward_spec[self.extrinsic_reward_key] = reference.clone()
         else:
             shape = (*shape, 1)
         for key in self._written_reward_keys():
             if key != self.extrinsic_reward_key:
-                reward_spec[key] = Unbounded(
-                    shape=shape, device=device, dtype=torch.float32
-                )
+                reward_spec[key] = Unbounded(shape=shape, device=device, dtype=dtype)
         return reward_spec
 
     def __repr__(self) -> str:
