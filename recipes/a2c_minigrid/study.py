@@ -4,7 +4,7 @@ Each setting is one run of ``main.py`` in ``<out>/<name>``. Rerunning the comman
 skips finished runs and resumes killed ones from their checkpoints, so a study
 survives the machine being stopped. ``--report`` writes, for every finished run,
 the frames at which the 100-episode mean extrinsic return first reached 0.5 and
-0.8, a CSV of the curves and a figure.
+0.8 (counted once 100 episodes have ended), a CSV of the curves and a figure.
 
     python recipes/a2c_minigrid/study.py --study n3s4 --out runs/study_n3s4 --jobs 2
     python recipes/a2c_minigrid/study.py --study n3s4 --out runs/study_n3s4 --report docs/results/n3s4
@@ -47,6 +47,11 @@ NONEPISODIC = [
 STUDIES: dict[str, dict[str, list[str]]] = {
     # The A2C anchor: bonus=none must solve DoorKey-5x5 well under 300k frames.
     "anchor": {"none": ["env.name=MiniGrid-DoorKey-5x5-v0", "bonus=none"]},
+    # The paper's DoorKey-8x8 panel, with the recipe's default bonus settings.
+    "doorkey8x8": {
+        "vae": ["env.name=MiniGrid-DoorKey-8x8-v0", "bonus=vae"],
+        "none": ["env.name=MiniGrid-DoorKey-8x8-v0", "bonus=none"],
+    },
     # The settings tried on MultiRoom-N3S4, in the order of docs/report.rst.
     "n3s4": {
         "none": [N3S4, "bonus=none"],
@@ -121,10 +126,17 @@ def report(settings: dict[str, list[str]], out: Path, dest: Path, frames: int) -
         path = out / name / "logs" / "a2c" / "scalars" / "train" / "episode_return.csv"
         if not path.exists():
             continue
+        # Only points where the 100-episode window is full: a mean over the
+        # first few episodes says little.
+        ep_steps, episodes = read_scalar_csv(path.parent / "episodes.csv")
+        full = set(ep_steps[episodes >= 100].tolist())
         steps, values = read_scalar_csv(path)
-        ok = values == values  # drop NaN (no finished episode yet)
+        ok = [s in full for s in steps.tolist()]
         steps, values = steps[ok], values[ok]
         curves[name] = (steps, values)
+        succ_steps, success = read_scalar_csv(path.parent / "success_rate.csv")
+        ok = [s in full for s in succ_steps.tolist()]
+        succ_steps, success = succ_steps[ok], success[ok]
         fps_steps, fps = read_scalar_csv(path.parents[1] / "time" / "fps.csv")
         rows.append(
             {
@@ -134,6 +146,9 @@ def report(settings: dict[str, list[str]], out: Path, dest: Path, frames: int) -
                 "best_return": round(float(values.max()), 3) if len(values) else "",
                 "frames_to_0.5": first_reached(steps, values, 0.5) or "not reached",
                 "frames_to_0.8": first_reached(steps, values, 0.8) or "not reached",
+                "final_success": round(float(success[-1]), 2) if len(success) else "",
+                "success_0.8_at": first_reached(succ_steps, success, 0.8)
+                or "not reached",
                 "fps": int(fps[len(fps) // 2 :].mean()) if len(fps) else "",
             }
         )
