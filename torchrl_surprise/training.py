@@ -16,6 +16,7 @@ from tensordict import TensorDictBase
 
 __all__ = [
     "EpisodeStats",
+    "get_run_logger",
     "get_rng_state",
     "load_checkpoint",
     "plot_learning_curves",
@@ -164,6 +165,28 @@ class EpisodeStats:
         self.lengths.clear()
         self.lengths.extend(state["lengths"])
         self.episodes = state["episodes"]
+
+
+def get_run_logger(
+    backend: str, run_dir: str | os.PathLike, experiment_name: str, project: str
+):
+    """A TorchRL logger writing under ``<run_dir>/logs`` (``None`` for ``""``).
+
+    Args:
+        backend (str): ``"csv"``, ``"tensorboard"``, ``"wandb"``, ``"mlflow"`` or ``""``.
+        run_dir: the run directory.
+        experiment_name (str): the experiment's name (its folder for CSV).
+        project (str): the W&B project (ignored by the other backends).
+    """
+    from torchrl.record.loggers import get_logger
+
+    extra = {"project": project} if backend == "wandb" else {}
+    return get_logger(
+        backend,
+        logger_name=str(Path(run_dir) / "logs"),
+        experiment_name=experiment_name,
+        **extra,
+    )
 
 
 def read_scalar_csv(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:

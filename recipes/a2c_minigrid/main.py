@@ -27,7 +27,6 @@ import torch
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import OmegaConf
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
-from torchrl.record.loggers import get_logger
 from tqdm import tqdm
 from utils import (
     check_config,
@@ -41,6 +40,7 @@ from utils import (
 from torchrl_surprise.training import (
     EpisodeStats,
     get_rng_state,
+    get_run_logger,
     load_checkpoint,
     plot_learning_curves,
     save_checkpoint,
@@ -167,15 +167,7 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
             },
         )
 
-    extra = (
-        {"project": cfg.logger.project_name} if cfg.logger.backend == "wandb" else {}
-    )
-    logger = get_logger(
-        cfg.logger.backend,
-        logger_name=str(run_dir / "logs"),
-        experiment_name="a2c",
-        **extra,
-    )
+    logger = get_run_logger(cfg.logger.backend, run_dir, "a2c", cfg.logger.project_name)
     remaining = cfg.collector.total_frames - frames
     if remaining <= 0:
         print(f"Nothing to do: {frames} frames already done in {run_dir}.")

@@ -20,13 +20,16 @@ from torchrl_surprise import (
     ICMLoss,
     ICMModel,
     ICMTransform,
-    LinearSchedule,
     StateVAE,
     VAELoss,
     VAESurpriseTransform,
 )
 from torchrl_surprise.envs import make_minigrid_env
-from torchrl_surprise.transforms import NORMALIZATIONS, PrecomputedBonusTransform
+from torchrl_surprise.transforms import (
+    NORMALIZATIONS,
+    PrecomputedBonusTransform,
+    make_coef_schedule,
+)
 from torchrl_surprise.transforms.stochasticity import (
     STOCHASTICITY_LEVELS,
     StochasticityTransform,
@@ -183,15 +186,9 @@ def make_a2c(cfg, model, intrinsic_value):
 def make_bonus(cfg, action_spec, bonus: str):
     """The bonus: (batch transform, loss on the bonus model, env-side transform)."""
     icfg = cfg.intrinsic
-    schedule = None
-    if icfg.warmup_frames or icfg.coef_end is not None:
-        end = icfg.coef if icfg.coef_end is None else icfg.coef_end
-        schedule = LinearSchedule(
-            start=icfg.coef,
-            end=end,
-            frames=int(icfg.anneal_frames),
-            delay=int(icfg.warmup_frames),
-        )
+    schedule = make_coef_schedule(
+        icfg.coef, icfg.coef_end, icfg.anneal_frames, icfg.warmup_frames
+    )
     common = dict(
         coef=icfg.coef,
         coef_schedule=schedule,

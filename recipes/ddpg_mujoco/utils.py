@@ -21,9 +21,9 @@ from torchrl.modules import (
 )
 from torchrl.objectives import DDPGLoss, SoftUpdate
 
-from torchrl_surprise import LinearSchedule, StateVAE, VAELoss, VAESurpriseTransform
+from torchrl_surprise import StateVAE, VAELoss, VAESurpriseTransform
 from torchrl_surprise.envs import make_mujoco_env
-from torchrl_surprise.transforms import NORMALIZATIONS
+from torchrl_surprise.transforms import NORMALIZATIONS, make_coef_schedule
 
 BONUSES = ("none", "vae")
 BONUS_AT = ("sample", "collection")
@@ -267,15 +267,9 @@ def make_bonus(cfg, obs_dim: int):
     if cfg.bonus == "none":
         return None, None
     icfg = cfg.intrinsic
-    schedule = None
-    if icfg.warmup_frames or icfg.coef_end is not None:
-        end = icfg.coef if icfg.coef_end is None else icfg.coef_end
-        schedule = LinearSchedule(
-            start=icfg.coef,
-            end=end,
-            frames=int(icfg.anneal_frames),
-            delay=int(icfg.warmup_frames),
-        )
+    schedule = make_coef_schedule(
+        icfg.coef, icfg.coef_end, icfg.anneal_frames, icfg.warmup_frames
+    )
     vae = StateVAE.for_vector(
         obs_dim,
         latent_dim=icfg.vae.latent_dim,

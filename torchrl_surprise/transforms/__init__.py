@@ -4,6 +4,7 @@ from torchrl_surprise.transforms.base import (
     NORMALIZATIONS,
     IntrinsicRewardTransform,
     LinearSchedule,
+    make_coef_schedule,
 )
 from torchrl_surprise.transforms.icm import ICMTransform
 from torchrl_surprise.transforms.precomputed import PrecomputedBonusTransform
@@ -22,4 +23,5 @@ __all__ = [
     "STOCHASTICITY_LEVELS",
     "StochasticityTransform",
     "VAESurpriseTransform",
+    "make_coef_schedule",
 ]

@@ -22,7 +22,12 @@ from torchrl.data.tensor_specs import Composite, Unbounded
 from torchrl.envs.transforms import Transform
 from torchrl.envs.transforms.rnd import RunningMeanStd
 
-__all__ = ["IntrinsicRewardTransform", "LinearSchedule", "NORMALIZATIONS"]
+__all__ = [
+    "IntrinsicRewardTransform",
+    "LinearSchedule",
+    "NORMALIZATIONS",
+    "make_coef_schedule",
+]
 
 #: Accepted values of ``normalization``.
 NORMALIZATIONS = ("none", "reward_std", "return_std", "zscore")
@@ -59,6 +64,36 @@ class LinearSchedule:
             return float(self.end)
         progress = min(1.0, (frame - self.delay) / self.frames)
         return float(self.start + (self.end - self.start) * progress)
+
+
+def make_coef_schedule(
+    coef: float,
+    coef_end: float | None = None,
+    anneal_frames: int = 0,
+    warmup_frames: int = 0,
+) -> LinearSchedule | None:
+    """The schedule a recipe's ``intrinsic.*`` settings describe, ``None`` if constant.
+
+    Args:
+        coef (float): the coefficient after the warm-up.
+        coef_end (float, optional): anneal linearly to this value.
+        anneal_frames (int): length of the anneal in frames.
+        warmup_frames (int): frames during which the coefficient is 0.
+
+    Examples:
+        >>> make_coef_schedule(0.5) is None
+        True
+        >>> make_coef_schedule(0.5, warmup_frames=100)(50)
+        0.0
+    """
+    if not warmup_frames and coef_end is None:
+        return None
+    return LinearSchedule(
+        start=coef,
+        end=coef if coef_end is None else coef_end,
+        frames=int(anneal_frames),
+        delay=int(warmup_frames),
+    )
 
 
 class IntrinsicRewardTransform(Transform):
