@@ -138,6 +138,21 @@ def report(settings: dict[str, list[str]], out: Path, dest: Path, frames: int) -
         ok = [s in full for s in succ_steps.tolist()]
         succ_steps, success = succ_steps[ok], success[ok]
         fps_steps, fps = read_scalar_csv(path.parents[1] / "time" / "fps.csv")
+        diagnostics = {}
+        for key in (
+            "intrinsic_reward",
+            "intrinsic_reward_normalized",
+            "episode_length",
+        ):
+            file = path.parent / f"{key}.csv"
+            values_k = read_scalar_csv(file)[1] if file.exists() else []
+            values_k = [v for v in values_k if v == v]
+            # Mean over the first and the last 10 log points (raw KL drift etc.).
+            diagnostics[key] = (
+                f"{sum(values_k[:10]) / 10:.3g} -> {sum(values_k[-10:]) / 10:.3g}"
+                if len(values_k) >= 20
+                else ""
+            )
         rows.append(
             {
                 "setting": name,
@@ -149,6 +164,9 @@ def report(settings: dict[str, list[str]], out: Path, dest: Path, frames: int) -
                 "final_success": round(float(success[-1]), 2) if len(success) else "",
                 "success_0.8_at": first_reached(succ_steps, success, 0.8)
                 or "not reached",
+                "intrinsic_raw": diagnostics["intrinsic_reward"],
+                "intrinsic_normalized": diagnostics["intrinsic_reward_normalized"],
+                "episode_length": diagnostics["episode_length"],
                 "fps": int(fps[len(fps) // 2 :].mean()) if len(fps) else "",
             }
         )
