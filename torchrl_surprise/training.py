@@ -19,6 +19,7 @@ __all__ = [
     "get_run_logger",
     "get_rng_state",
     "load_checkpoint",
+    "prepare_run",
     "plot_learning_curves",
     "read_scalar_csv",
     "save_checkpoint",
@@ -83,6 +84,34 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     """Loads a checkpoint written by :func:`save_checkpoint`."""
     # Checkpoints hold RNG states (tuples, NumPy arrays): not weights-only.
     return torch.load(path, weights_only=False)
+
+
+def prepare_run(cfg, run_dir: str | os.PathLike) -> tuple[Path, dict[str, Any] | None]:
+    """What every recipe does first: threads, seeds, resolved config, checkpoint.
+
+    Sets ``torch.set_num_threads(cfg.torch_threads)``, seeds with ``cfg.seed``,
+    writes ``config_resolved.yaml`` into ``run_dir`` and, with ``cfg.resume``,
+    loads ``<run_dir>/checkpoint.pt`` (a clear error when there is none).
+
+    Returns:
+        ``(checkpoint_path, checkpoint or None)``.
+    """
+    from omegaconf import OmegaConf
+
+    run_dir = Path(run_dir)
+    ckpt_path = run_dir / "checkpoint.pt"
+    torch.set_num_threads(cfg.torch_threads)
+    seed_everything(cfg.seed)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "config_resolved.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+    if not cfg.resume:
+        return ckpt_path, None
+    if not ckpt_path.exists():
+        raise FileNotFoundError(
+            f"resume=true but there is no checkpoint at {ckpt_path}; pass the run "
+            "directory of the run to resume as hydra.run.dir=<dir>."
+        )
+    return ckpt_path, load_checkpoint(ckpt_path)
 
 
 class EpisodeStats:

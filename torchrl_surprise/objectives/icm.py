@@ -7,16 +7,15 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 from tensordict import TensorDict, TensorDictBase
-from tensordict.utils import NestedKey, unravel_key
-from torchrl.objectives.common import LossModule
+from tensordict.utils import NestedKey
 
 from torchrl_surprise.modules.icm import ICMModel
-from torchrl_surprise.objectives.vae import _as_tuple, _read
+from torchrl_surprise.objectives.common import _as_tuple, _BonusModelLoss
 
 __all__ = ["ICMLoss"]
 
 
-class ICMLoss(LossModule):
+class ICMLoss(_BonusModelLoss):
     """Forward and inverse losses of the Intrinsic Curiosity Module.
 
     ``loss_inverse = (1 - beta) * CE(g(phi(s), phi(s')), a)`` (MSE for continuous
@@ -67,25 +66,10 @@ class ICMLoss(LossModule):
     def __init__(self, icm: ICMModel, *, beta: float = 0.2, reduction: str = "mean"):
         if not 0.0 <= beta <= 1.0:
             raise ValueError(f"beta must be in [0, 1], got {beta}.")
-        if reduction not in ("mean", "sum", "none"):
-            raise ValueError(f"reduction must be mean, sum or none, got {reduction!r}.")
-        super().__init__()
+        super().__init__(reduction)
         self.icm = icm
         self.beta = beta
-        self.reduction = reduction
         self.set_keys(observations=tuple(icm.in_keys))
-
-    def set_keys(self, **kwargs) -> None:
-        """Sets tensordict keys; ``observations`` takes one key or a sequence."""
-        if "observations" in kwargs and kwargs["observations"] is not None:
-            obs = kwargs["observations"]
-            if isinstance(obs, str):
-                obs = (obs,)
-            kwargs["observations"] = tuple(unravel_key(k) for k in obs)
-        super().set_keys(**kwargs)
-
-    def _forward_value_estimator_keys(self, **kwargs) -> None:
-        pass
 
     @property
     def in_keys(self) -> list[NestedKey]:
@@ -94,21 +78,14 @@ class ICMLoss(LossModule):
         nxt = [("next", *_as_tuple(k)) for k in obs]
         return obs + nxt + [self.tensor_keys.action]
 
-    def _reduce(self, loss: torch.Tensor) -> torch.Tensor:
-        if self.reduction == "mean":
-            return loss.mean()
-        if self.reduction == "sum":
-            return loss.sum()
-        return loss
-
     def forward(self, tensordict: TensorDictBase = None, **kwargs) -> TensorDictBase:
         """Computes the losses on a batch (a TensorDict, or the keys as keywords)."""
         if tensordict is None:
             tensordict = TensorDict(kwargs)
         keys = self.tensor_keys.observations
-        obs = _read(self, tensordict, keys)
-        next_obs = _read(self, tensordict, [("next", *_as_tuple(k)) for k in keys])
-        (action,) = _read(self, tensordict, [self.tensor_keys.action])
+        obs = self._read(tensordict, keys)
+        next_obs = self._read(tensordict, [("next", *_as_tuple(k)) for k in keys])
+        (action,) = self._read(tensordict, [self.tensor_keys.action])
         phi = self.icm.features(obs)
         phi_next = self.icm.features(next_obs)
         inverse_out = self.icm.inverse_model(torch.cat([phi, phi_next], -1))

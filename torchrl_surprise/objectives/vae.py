@@ -4,32 +4,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import torch
 from tensordict import TensorDict, TensorDictBase
-from tensordict.utils import NestedKey, unravel_key
-from torchrl.objectives.common import LossModule
+from tensordict.utils import NestedKey
 
 from torchrl_surprise.modules.vae import StateVAE, kl_to_standard_normal
+from torchrl_surprise.objectives.common import _as_tuple, _BonusModelLoss
 
 __all__ = ["VAELoss"]
 
 
-def _read(loss: LossModule, tensordict: TensorDictBase, keys) -> list[torch.Tensor]:
-    values = []
-    for key in keys:
-        value = tensordict.get(key, None)
-        if value is None:
-            raise KeyError(
-                f"{type(loss).__name__}: expected the key {key!r}; found "
-                f"{sorted(str(k) for k in tensordict.keys(True, True))}."
-            )
-        if value.dtype.is_floating_point and not torch.isfinite(value).all():
-            raise ValueError(f"{type(loss).__name__}: {key!r} contains NaN or inf.")
-        values.append(value)
-    return values
-
-
-class VAELoss(LossModule):
+class VAELoss(_BonusModelLoss):
     """Negative ELBO of a :class:`~torchrl_surprise.modules.StateVAE`.
 
     ``loss_reconstruction = -E_q[log p(s|z)]`` (one reparameterised sample) and
@@ -82,25 +66,10 @@ class VAELoss(LossModule):
         kl_weight: float = 1.0,
         reduction: str = "mean",
     ):
-        if reduction not in ("mean", "sum", "none"):
-            raise ValueError(f"reduction must be mean, sum or none, got {reduction!r}.")
-        super().__init__()
+        super().__init__(reduction)
         self.vae = vae
         self.kl_weight = kl_weight
-        self.reduction = reduction
         self.set_keys(observations=tuple(("next", *_as_tuple(k)) for k in vae.in_keys))
-
-    def set_keys(self, **kwargs) -> None:
-        """Sets tensordict keys; ``observations`` takes one key or a sequence."""
-        if "observations" in kwargs and kwargs["observations"] is not None:
-            obs = kwargs["observations"]
-            if isinstance(obs, str):
-                obs = (obs,)
-            kwargs["observations"] = tuple(unravel_key(k) for k in obs)
-        super().set_keys(**kwargs)
-
-    def _forward_value_estimator_keys(self, **kwargs) -> None:
-        pass
 
     @property
     def in_keys(self) -> list[NestedKey]:
@@ -111,12 +80,12 @@ class VAELoss(LossModule):
         """Computes the losses on a batch (a TensorDict, or the keys as keywords)."""
         if tensordict is None:
             tensordict = TensorDict(kwargs)
-        observations = _read(self, tensordict, self.tensor_keys.observations)
+        observations = self._read(tensordict, self.tensor_keys.observations)
         loc, scale, _, log_likelihood = self.vae(*observations)
         kl = kl_to_standard_normal(loc, scale)
         nll = -log_likelihood
-        loss_kl = self._reduce_loss(self.kl_weight * kl, tensordict)
-        loss_rec = self._reduce_loss(nll, tensordict)
+        loss_kl = self._reduce(self.kl_weight * kl)
+        loss_rec = self._reduce(nll)
         return TensorDict(
             {
                 "loss_reconstruction": loss_rec,
@@ -126,14 +95,3 @@ class VAELoss(LossModule):
             },
             batch_size=[],
         )
-
-    def _reduce_loss(self, loss: torch.Tensor, tensordict: TensorDictBase):
-        if self.reduction == "mean":
-            return loss.mean()
-        if self.reduction == "sum":
-            return loss.sum()
-        return loss
-
-
-def _as_tuple(key: NestedKey) -> tuple[str, ...]:
-    return (key,) if isinstance(key, str) else tuple(key)
