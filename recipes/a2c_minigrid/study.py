@@ -47,6 +47,14 @@ NONEPISODIC = [
 STUDIES: dict[str, dict[str, list[str]]] = {
     # The A2C anchor: bonus=none must solve DoorKey-5x5 well under 300k frames.
     "anchor": {"none": ["env.name=MiniGrid-DoorKey-5x5-v0", "bonus=none"]},
+    # Figure 2: N3S4 with noise (torchrl_surprise.transforms.STOCHASTICITY_LEVELS),
+    # the recipe's default bonus settings.
+    "noise": {
+        "vae_level2": [N3S4, "bonus=vae", "env.stochasticity=2"],
+        "icm_level2": [N3S4, "bonus=icm", "env.stochasticity=2"],
+        "vae_level3": [N3S4, "bonus=vae", "env.stochasticity=3"],
+        "icm_level3": [N3S4, "bonus=icm", "env.stochasticity=3"],
+    },
     # The paper's DoorKey-8x8 panel, with the recipe's default bonus settings.
     "doorkey8x8": {
         "vae": ["env.name=MiniGrid-DoorKey-8x8-v0", "bonus=vae"],
