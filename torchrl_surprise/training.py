@@ -16,6 +16,7 @@ from tensordict import TensorDictBase
 
 __all__ = [
     "EpisodeStats",
+    "evaluate_episodes",
     "get_run_logger",
     "get_rng_state",
     "load_checkpoint",
@@ -216,6 +217,53 @@ def get_run_logger(
         experiment_name=experiment_name,
         **extra,
     )
+
+
+def evaluate_episodes(
+    env,
+    policy,
+    episodes: int,
+    *,
+    seed: int,
+    deterministic: bool = True,
+    chunk: int = 256,
+    max_chunks: int = 100,
+) -> list[float]:
+    """Returns of the first ``episodes`` episodes that end, under ``torch.no_grad()``.
+
+    The env is reseeded with ``seed`` first, so every evaluation sees the same
+    episodes. It must sum the episode return under ``("next", "episode_reward")``
+    (TorchRL's ``RewardSum``, placed before any bonus so the return is extrinsic).
+
+    Args:
+        env: a (batched) TorchRL env.
+        policy: the policy to evaluate.
+        episodes (int): how many finished episodes to return.
+        seed (int): the evaluation seed.
+        deterministic (bool): ``ExplorationType.DETERMINISTIC`` or ``RANDOM``.
+        chunk (int): steps per rollout call; ``max_chunks`` bounds the total.
+    """
+    from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
+
+    env.set_seed(seed)
+    mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
+    returns: list[float] = []
+    state = env.reset()
+    with torch.no_grad(), set_exploration_type(mode):
+        for _ in range(max_chunks):
+            rollout = env.rollout(
+                chunk,
+                policy,
+                auto_reset=False,
+                tensordict=state,
+                break_when_any_done=False,
+            )
+            done = rollout["next", "done"].squeeze(-1)
+            returns += rollout["next", "episode_reward"].squeeze(-1)[done].tolist()
+            state = step_mdp(rollout[..., -1])
+            if len(returns) >= episodes:
+                break
+    return returns[:episodes]
 
 
 def read_scalar_csv(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:

@@ -25,7 +25,6 @@ from pathlib import Path
 import hydra
 import torch
 from hydra.core.hydra_config import HydraConfig
-from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 from tqdm import tqdm
 from utils import (
     check_config,
@@ -38,6 +37,7 @@ from utils import (
 
 from torchrl_surprise.training import (
     EpisodeStats,
+    evaluate_episodes,
     get_rng_state,
     get_run_logger,
     plot_learning_curves,
@@ -51,25 +51,9 @@ EVAL_SEED_OFFSET = 10_000
 
 def evaluate(env, policy, episodes: int, deterministic: bool) -> tuple[float, float]:
     """Mean extrinsic return and success rate over ``episodes`` finished episodes."""
-    env.set_seed(env.eval_seed)
-    mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
-    returns: list[float] = []
-    state = env.reset()
-    with torch.no_grad(), set_exploration_type(mode):
-        for _ in range(100):  # at most 100 * 256 steps per env
-            rollout = env.rollout(
-                256,
-                policy,
-                auto_reset=False,
-                tensordict=state,
-                break_when_any_done=False,
-            )
-            done = rollout["next", "done"].squeeze(-1)
-            returns += rollout["next", "episode_reward"].squeeze(-1)[done].tolist()
-            state = step_mdp(rollout[..., -1])
-            if len(returns) >= episodes:
-                break
-    returns = returns[:episodes]
+    returns = evaluate_episodes(
+        env, policy, episodes, seed=env.eval_seed, deterministic=deterministic
+    )
     mean = sum(returns) / max(len(returns), 1)
     return mean, sum(r > 0 for r in returns) / max(len(returns), 1)
 

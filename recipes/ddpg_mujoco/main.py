@@ -34,7 +34,6 @@ from pathlib import Path
 import hydra
 import torch
 from hydra.core.hydra_config import HydraConfig
-from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 from tqdm import tqdm
 from utils import (
     OBS_KEY,
@@ -52,6 +51,7 @@ from utils import (
 
 from torchrl_surprise.training import (
     EpisodeStats,
+    evaluate_episodes,
     get_rng_state,
     get_run_logger,
     plot_learning_curves,
@@ -65,24 +65,7 @@ EVAL_SEED_OFFSET = 10_000
 
 def evaluate(env, actor, episodes: int) -> float:
     """Mean extrinsic return of the noiseless actor over ``episodes`` episodes."""
-    env.set_seed(env.eval_seed)
-    returns: list[float] = []
-    state = env.reset()
-    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-        for _ in range(100):  # at most 100 * 1000 steps per env
-            rollout = env.rollout(
-                1000,
-                actor,
-                auto_reset=False,
-                tensordict=state,
-                break_when_any_done=False,
-            )
-            done = rollout["next", "done"].squeeze(-1)
-            returns += rollout["next", "episode_reward"].squeeze(-1)[done].tolist()
-            state = step_mdp(rollout[..., -1])
-            if len(returns) >= episodes:
-                break
-    returns = returns[:episodes]
+    returns = evaluate_episodes(env, actor, episodes, seed=env.eval_seed, chunk=1000)
     return sum(returns) / max(len(returns), 1)
 
 
