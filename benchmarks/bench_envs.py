@@ -4,7 +4,7 @@ Compares, with random actions, in one process:
 
 * ``make_minigrid_env(num_envs=N)``: gymnasium ``SyncVectorEnv`` (auto-reset
   disabled, TorchRL resets) wrapped once by ``GymWrapper``;
-* the same with ``AutoresetMode.SAME_STEP`` (what STACK.md measured; see
+* the same with ``AutoresetMode.SAME_STEP`` (see
   ``torchrl_surprise/envs/minigrid.py`` for why the factory does not use it);
 * TorchRL ``SerialEnv(N)`` of single ``GymWrapper`` envs (mission dropped);
 * a raw gymnasium loop over one env (the ceiling).

@@ -312,9 +312,9 @@ def test_vae_training_on_fixed_states_raises_their_kl_above_unseen_states(
 ):
     """What training does to the VAE bonus of the states it was trained on.
 
-    Expected by the brief: a few hundred Adam steps on a small fixed set of
-    states *lower* their bonus relative to unseen random states (a count-like
-    novelty signal). Measured: the opposite. The ELBO makes the posterior of
+    A novelty signal would do this: a few hundred Adam steps on a small fixed set
+    of states *lower* their bonus relative to unseen random states (count-like).
+    Measured: the opposite. The ELBO makes the posterior of
     the trained states informative (narrow, away from the prior) so that they
     can be reconstructed, which raises ``KL(q(z|s) || N(0, I))`` on exactly
     those states, while states the VAE never fitted stay near the prior. Before
