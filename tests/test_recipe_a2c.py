@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-import os
-import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 import torch
+from _recipe_run import kill_after_checkpoint
 
 from torchrl_surprise.training import load_checkpoint, read_scalar_csv
 
@@ -81,18 +79,9 @@ def test_resume_after_kill_continues_the_frame_count(tmp_path):
         "bonus=vae",
         "collector.total_frames=1000000",
     ]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     ckpt_path = run_dir / "checkpoint.pt"
-    deadline = time.time() + 120
-    try:
-        while time.time() < deadline:
-            if ckpt_path.exists() and load_checkpoint(ckpt_path)["frames"] >= 256:
-                break
-            time.sleep(0.5)
-    finally:
-        os.kill(proc.pid, signal.SIGKILL)
-        proc.wait()
-    killed_at = load_checkpoint(ckpt_path)["frames"]
+    killed = kill_after_checkpoint(cmd, ckpt_path, min_frames=256)
+    killed_at = killed["frames"]
     assert killed_at >= 256
     target = killed_at + 4 * 32  # four more rollouts of 4 envs x 8 frames
     out = run_recipe(

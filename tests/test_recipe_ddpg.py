@@ -4,15 +4,13 @@ pieces in-process: the replay-buffer bonus equals the env-path bonus."""
 from __future__ import annotations
 
 import importlib.util
-import os
-import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 import torch
+from _recipe_run import kill_after_checkpoint
 from hydra import compose, initialize_config_dir
 from tensordict import TensorDict
 
@@ -154,18 +152,8 @@ def test_resume_after_kill_continues_the_frame_count(tmp_path):
         "bonus=vae",
         "collector.total_frames=1000000",
     ]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     ckpt_path = run_dir / "checkpoint.pt"
-    deadline = time.time() + 120
-    try:
-        while time.time() < deadline:
-            if ckpt_path.exists() and load_checkpoint(ckpt_path)["frames"] >= 400:
-                break
-            time.sleep(0.5)
-    finally:
-        os.kill(proc.pid, signal.SIGKILL)
-        proc.wait()
-    killed = load_checkpoint(ckpt_path)
+    killed = kill_after_checkpoint(cmd, ckpt_path, min_frames=400)
     killed_at = killed["frames"]
     assert killed_at >= 400
     target = killed_at + 2 * FRAMES_PER_BATCH
