@@ -47,6 +47,12 @@ NONEPISODIC = [
 STUDIES: dict[str, dict[str, list[str]]] = {
     # The A2C anchor: bonus=none must solve DoorKey-5x5 well under 300k frames.
     "anchor": {"none": ["env.name=MiniGrid-DoorKey-5x5-v0", "bonus=none"]},
+    # MultiRoom-N4S4 (Figure 1, middle panel), the recipe's default bonus settings.
+    "n4s4": {
+        "vae": ["env.name=MiniGrid-MultiRoom-N4-S4-v0", "bonus=vae"],
+        "icm": ["env.name=MiniGrid-MultiRoom-N4-S4-v0", "bonus=icm"],
+        "none": ["env.name=MiniGrid-MultiRoom-N4-S4-v0", "bonus=none"],
+    },
     # Figure 2: N3S4 with noise (torchrl_surprise.transforms.STOCHASTICITY_LEVELS),
     # the recipe's default bonus settings.
     "noise": {
