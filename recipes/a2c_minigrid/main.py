@@ -157,7 +157,6 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         # Step 2: the bonus of the whole rollout, with the VAE as it was during it.
         with torch.no_grad():
             if bonus_transform is not None:
-                bonus_transform.train()
                 data = bonus_transform(data)
             # Step 3: advantages on the (mixed) reward.
             data = gae(data)

@@ -197,7 +197,6 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         obs_norm.update(data["next", OBS_KEY])
         if bonus_at_collection:
             with torch.no_grad():
-                bonus_transform.train()
                 bonus_transform.set_frames(frames)
                 data = bonus_transform(obs_norm(data))
             log_bonus(logs, data["next"])
