@@ -19,7 +19,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from torchrl_surprise.training import read_scalar_csv  # noqa: E402
+from torchrl_surprise.experiments import read_scalar_csv  # noqa: E402
 
 
 def run(bonus: str, frames: int, env: str, out: Path) -> float:

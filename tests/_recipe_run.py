@@ -8,7 +8,7 @@ import subprocess
 import time
 from pathlib import Path
 
-from torchrl_surprise.training import load_checkpoint
+from torchrl_surprise.experiments import load_checkpoint
 
 
 def kill_after_checkpoint(cmd: list[str], ckpt_path: Path, min_frames: int) -> dict:

@@ -10,7 +10,7 @@ import pytest
 import torch
 from _recipe_run import kill_after_checkpoint
 
-from torchrl_surprise.training import load_checkpoint, read_scalar_csv
+from torchrl_surprise.experiments import load_checkpoint, read_scalar_csv
 
 MAIN = Path(__file__).resolve().parents[1] / "recipes" / "a2c_minigrid" / "main.py"
 TINY = [

@@ -14,7 +14,7 @@ from _recipe_run import kill_after_checkpoint
 from hydra import compose, initialize_config_dir
 from tensordict import TensorDict
 
-from torchrl_surprise.training import load_checkpoint, read_scalar_csv
+from torchrl_surprise.experiments import load_checkpoint, read_scalar_csv
 
 RECIPE = Path(__file__).resolve().parents[1] / "recipes" / "ddpg_mujoco"
 MAIN = RECIPE / "main.py"

@@ -35,7 +35,7 @@ from utils import (
     make_env,
 )
 
-from torchrl_surprise.training import (
+from torchrl_surprise.experiments import (
     EpisodeStats,
     evaluate_episodes,
     get_rng_state,

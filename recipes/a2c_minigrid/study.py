@@ -23,7 +23,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parents[1]))
 
-from torchrl_surprise.training import (  # noqa: E402
+from torchrl_surprise.experiments import (  # noqa: E402
     load_checkpoint,
     plot_learning_curves,
     read_scalar_csv,

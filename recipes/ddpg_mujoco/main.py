@@ -49,7 +49,7 @@ from utils import (
     replay_keys,
 )
 
-from torchrl_surprise.training import (
+from torchrl_surprise.experiments import (
     EpisodeStats,
     evaluate_episodes,
     get_rng_state,

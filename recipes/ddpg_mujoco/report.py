@@ -15,7 +15,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from torchrl_surprise.training import plot_learning_curves, read_scalar_csv  # noqa: E402
+from torchrl_surprise.experiments import plot_learning_curves, read_scalar_csv  # noqa: E402
 
 
 def main() -> None:

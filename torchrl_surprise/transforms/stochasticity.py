@@ -11,10 +11,15 @@ import numbers
 from collections.abc import Sequence
 
 import torch
-from minigrid.core.constants import COLOR_TO_IDX, OBJECT_TO_IDX, STATE_TO_IDX
 from tensordict import NestedKey, TensorDictBase
 from torchrl.data import Categorical, MultiCategorical, MultiOneHot, OneHot
 from torchrl.envs import Transform
+
+from torchrl_surprise.modules.vae import (
+    MINIGRID_NUM_COLORS,
+    MINIGRID_NUM_OBJECTS,
+    MINIGRID_NUM_STATES,
+)
 
 __all__ = [
     "AGENT_CELL",
@@ -62,9 +67,9 @@ STOCHASTICITY_LEVEL_NAMES: dict[str, int] = {"none": 0, "mild": 1, "more": 2, "m
 # Random patch values: every object a MiniGrid view can contain ("agent" never
 # appears in the egocentric image), every colour and every door state.
 _NOISE_HIGH = (
-    len(OBJECT_TO_IDX) - 1,
-    len(COLOR_TO_IDX),
-    len(STATE_TO_IDX),
+    MINIGRID_NUM_OBJECTS - 1,
+    MINIGRID_NUM_COLORS,
+    MINIGRID_NUM_STATES,
 )
 
 
