@@ -14,17 +14,23 @@ Every update, in this order:
    steps on the states of D, which is then discarded (no replay).
 
 Run: ``python recipes/a2c_minigrid/main.py bonus=vae env.name=MiniGrid-MultiRoom-N3-S4-v0``
-Resume a killed run: ``... hydra.run.dir=<its run dir> resume=true``.
+Sweep: ``python recipes/a2c_minigrid/main.py -m +experiment=n3s4`` (rerun it to resume).
+Resume a killed run: ``... hydra.run.dir=<its run dir>`` (``resume=auto``, the
+default, continues from the checkpoint; the resumed run logs exactly what the
+uninterrupted run would have). Ctrl-C or SIGTERM saves a checkpoint and exits.
 """
 
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 
 import hydra
 import torch
 from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
+from omegaconf import OmegaConf
 from tqdm import tqdm
 from utils import (
     check_config,
@@ -36,14 +42,16 @@ from utils import (
 )
 
 from torchrl_surprise.experiments import (
+    Checkpointer,
     EpisodeStats,
+    Progress,
+    RNGState,
+    StopSignal,
     evaluate_episodes,
-    get_rng_state,
     get_run_logger,
-    plot_learning_curves,
+    plot_scalar_logs,
     prepare_run,
-    save_checkpoint,
-    set_rng_state,
+    resume_command,
 )
 
 EVAL_SEED_OFFSET = 10_000
@@ -63,10 +71,9 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
     check_config(cfg)
     run_dir = Path(HydraConfig.get().runtime.output_dir)
     ckpt_path, ckpt = prepare_run(cfg, run_dir)
-    frames = ckpt["frames"] if ckpt else 0
 
     # ---- envs, models, losses -------------------------------------------------
-    env = make_env(cfg, cfg.env.num_envs, seed=cfg.seed + frames)
+    env = make_env(cfg, cfg.env.num_envs, seed=cfg.seed)
     bonus_transform, bonus_loss, env_side = make_bonus(cfg, env.action_spec, cfg.bonus)
     if env_side is not None:
         env.append_transform(env_side)
@@ -97,61 +104,56 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
             gae_int.set_keys(done="never_done", terminated="never_done")
 
     stats = EpisodeStats(window=cfg.logger.episode_window)
-    history: dict[str, list] = {"frames": [], "return": [], "success": []}
-    next_eval = cfg.eval.interval_frames
-    next_ckpt = cfg.checkpoint.interval_frames
+    progress = Progress(
+        frames=0,
+        next_eval=cfg.eval.interval_frames,
+        next_ckpt=cfg.checkpoint.interval_frames,
+    )
+    # The collector holds the episodes in progress; it runs to total_frames from
+    # its own saved frame count, so it is built for the whole run.
+    collector = make_collector(
+        env, policy, cfg, total_frames=cfg.collector.total_frames
+    )
+    # What a checkpoint holds, saved and loaded from this one mapping (RNG last:
+    # building the run above drew random numbers).
+    checkpointer = Checkpointer(
+        ckpt_path,
+        {
+            "progress": progress,
+            "model": model,
+            "int_value": int_value,
+            "optim": optim,
+            "bonus_transform": bonus_transform,
+            "bonus_optim": bonus_optim,
+            "collector": collector,
+            "stats": stats,
+            "rng": RNGState(),
+        },
+        config=OmegaConf.to_container(cfg, resolve=True),
+    )
     if ckpt:
-        model.load_state_dict(ckpt["model"])
-        optim.load_state_dict(ckpt["optim"])
-        if int_value is not None:
-            int_value.load_state_dict(ckpt["int_value"])
-        if bonus_transform is not None:
-            bonus_transform.load_state_dict(ckpt["bonus_transform"])
-            bonus_optim.load_state_dict(ckpt["bonus_optim"])
-        if env_side is not None:
-            env_side.load_state_dict(ckpt["env_side"])
-        stats.load_state_dict(ckpt["stats"])
-        history = ckpt["history"]
-        next_eval, next_ckpt = ckpt["next_eval"], ckpt["next_ckpt"]
-        set_rng_state(ckpt["rng"])
-
-    def checkpoint() -> None:
-        save_checkpoint(
-            ckpt_path,
-            {
-                "frames": frames,
-                "model": model.state_dict(),
-                "optim": optim.state_dict(),
-                "int_value": None if int_value is None else int_value.state_dict(),
-                "bonus_transform": None
-                if bonus_transform is None
-                else bonus_transform.state_dict(),
-                "bonus_optim": None
-                if bonus_optim is None
-                else bonus_optim.state_dict(),
-                "env_side": None if env_side is None else env_side.state_dict(),
-                "stats": stats.state_dict(),
-                "history": history,
-                "next_eval": next_eval,
-                "next_ckpt": next_ckpt,
-                "rng": get_rng_state(),
-            },
-        )
-
+        checkpointer.load(ckpt)
+    frames = progress.frames
     logger = get_run_logger(cfg.logger.backend, run_dir, "a2c", cfg.logger.project_name)
-    remaining = cfg.collector.total_frames - frames
-    if remaining <= 0:
+    if frames >= cfg.collector.total_frames:
         print(f"Nothing to do: {frames} frames already done in {run_dir}.")
+        collector.shutdown()
         return
-    collector = make_collector(env, policy, cfg, total_frames=remaining)
+    stop = StopSignal()
 
     # ---- training loop ----------------------------------------------------------
     pbar = tqdm(
-        total=cfg.collector.total_frames, initial=frames, unit="f", desc=cfg.bonus
+        total=cfg.collector.total_frames,
+        initial=frames,
+        unit="f",
+        desc=cfg.bonus,
+        # In a sweep, parallel bars garble each other: the logs hold the progress.
+        disable=HydraConfig.get().mode == RunMode.MULTIRUN,
     )
     start, start_frames = time.perf_counter(), frames
-    for iteration, data in enumerate(collector):
+    for data in collector:
         frames += data.numel()
+        iteration = frames // data.numel() - 1
         stats.update(data)
 
         # Step 2: the bonus of the whole rollout, with the VAE as it was during it.
@@ -230,14 +232,11 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
             if logger is not None:
                 for name, value in metrics.items():
                     logger.log_scalar(name, value, step=frames)
-            if stats.returns:
-                history["frames"].append(frames)
-                history["return"].append(stats.mean_return)
-                history["success"].append(stats.success_rate)
             pbar.set_postfix(fps=f"{fps:.0f}", ret=f"{stats.mean_return:.3f}")
 
-        if frames >= next_eval:
-            next_eval += cfg.eval.interval_frames
+        progress.frames = frames
+        if frames >= progress.next_eval:
+            progress.next_eval += cfg.eval.interval_frames
             model.eval()
             ret, success = evaluate(
                 eval_env, policy, cfg.eval.episodes, cfg.eval.deterministic
@@ -246,16 +245,28 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
             if logger is not None:
                 logger.log_scalar("eval/episode_return", ret, step=frames)
                 logger.log_scalar("eval/success_rate", success, step=frames)
-        if frames >= next_ckpt:
-            next_ckpt += cfg.checkpoint.interval_frames
-            checkpoint()
+        if frames >= progress.next_ckpt:
+            progress.next_ckpt += cfg.checkpoint.interval_frames
+            checkpointer.save()
+        if stop:
+            checkpointer.save()
+            pbar.close()
+            collector.shutdown()
+            print(
+                f"{stop.name}: stopped at {frames} frames, checkpoint saved. "
+                f"Resume with: {resume_command(run_dir)}"
+            )
+            sys.exit(128 + stop.received)
+    stop.restore()
     pbar.close()
+    checkpointer.save()
     collector.shutdown()
-    checkpoint()
 
-    curve = plot_learning_curves(
-        {cfg.bonus: (history["frames"], history["return"])},
+    curve = plot_scalar_logs(
+        run_dir / "logs",
+        "train/episode_return",
         run_dir / "learning_curve.png",
+        label=cfg.bonus,
         title=f"{cfg.env.name}: A2C + {cfg.bonus} (seed {cfg.seed})",
         ylabel=f"extrinsic return ({cfg.logger.episode_window}-episode mean)",
     )

@@ -8,7 +8,6 @@ import torch
 from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
 from torch.distributions import Categorical
-from torchrl.collectors import Collector
 from torchrl.envs import Compose, RewardSum, StepCounter, TransformedEnv
 from torchrl.envs.transforms import RNDTransform
 from torchrl.modules import ActorValueOperator, ProbabilisticActor, ValueOperator
@@ -25,6 +24,7 @@ from torchrl_surprise import (
     VAESurpriseTransform,
 )
 from torchrl_surprise.envs import make_minigrid_env
+from torchrl_surprise.experiments import RESUME_MODES, ResumableCollector
 from torchrl_surprise.transforms import (
     NORMALIZATIONS,
     PrecomputedBonusTransform,
@@ -53,6 +53,8 @@ def check_config(cfg) -> None:
             f"env.stochasticity must be one of {sorted(STOCHASTICITY_LEVELS)}, got "
             f"{cfg.env.stochasticity!r}."
         )
+    if str(cfg.resume).lower() not in RESUME_MODES:
+        raise ValueError(f"resume must be one of {RESUME_MODES}, got {cfg.resume!r}.")
     positive = {
         "env.num_envs": cfg.env.num_envs,
         "collector.total_frames": cfg.collector.total_frames,
@@ -245,7 +247,9 @@ def make_bonus(cfg, action_spec, bonus: str):
 
 def make_collector(env, policy, cfg, total_frames: int):
     frames_per_batch = cfg.env.num_envs * cfg.collector.frames_per_env
-    return Collector(
+    # ResumableCollector: a TorchRL Collector whose state_dict also holds the
+    # episodes in progress, so a resumed run continues exactly.
+    return ResumableCollector(
         env,
         policy,
         frames_per_batch=frames_per_batch,

@@ -39,9 +39,11 @@ import minigrid  # noqa: F401  (registers the MiniGrid-* ids with gymnasium)
 import torch
 from gymnasium.wrappers import FilterObservation
 from minigrid.minigrid_env import MiniGridEnv
-from tensordict import NestedKey, TensorDictBase
+from tensordict import NestedKey
 from torchrl.data import Categorical, Composite, OneHot
-from torchrl.envs import EnvBase, GymWrapper, Transform
+from torchrl.envs import EnvBase, Transform
+
+from torchrl_surprise.envs.vector import VectorGymWrapper
 
 __all__ = [
     "MINIGRID_OBS_KEYS",
@@ -138,21 +140,6 @@ def _make_single_minigrid(
     return FilterObservation(env, list(MINIGRID_OBS_KEYS))
 
 
-class _VecGymWrapper(GymWrapper):
-    """``GymWrapper`` over a gymnasium vector env, usable inside batched envs.
-
-    For a vector env, ``GymWrapper._step`` returns done flags of shape ``[B]``; the
-    public ``step`` reshapes them to the spec's ``[B, 1]``, but ``SerialEnv`` and
-    ``ParallelEnv`` call the private ``_step`` of their sub-envs and then fail on
-    the shape mismatch (TorchRL 0.14.1). Reshaping here makes both paths agree.
-    """
-
-    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        next_tensordict = super()._step(tensordict)
-        self._complete_done(self.full_done_spec, next_tensordict)
-        return next_tensordict
-
-
 class _OneHotAction(Transform):
     """Exposes a categorical action as one-hot (the base env keeps integer actions).
 
@@ -244,7 +231,7 @@ def make_minigrid_env(
     vec_env = gym.vector.SyncVectorEnv(
         [env_fn] * num_envs, autoreset_mode=gym.vector.AutoresetMode.DISABLED
     )
-    env = _VecGymWrapper(vec_env, device=device, categorical_action_encoding=True)
+    env = VectorGymWrapper(vec_env, device=device, categorical_action_encoding=True)
     if not categorical_action_encoding:
         env = env.append_transform(_OneHotAction())
     if seed is not None:

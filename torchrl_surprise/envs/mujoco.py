@@ -12,9 +12,9 @@ from typing import Any
 
 import gymnasium as gym
 from gymnasium.envs.mujoco import MujocoEnv
-from torchrl.envs import DoubleToFloat, EnvBase, GymEnv, TransformedEnv
+from torchrl.envs import DoubleToFloat, EnvBase, TransformedEnv
 
-from torchrl_surprise.envs.minigrid import _VecGymWrapper
+from torchrl_surprise.envs.vector import SingleGymEnv, VectorGymWrapper
 
 __all__ = ["PAPER_MUJOCO_IDS", "make_mujoco_env"]
 
@@ -103,14 +103,14 @@ def make_mujoco_env(
         raise ValueError(f"num_envs must be a positive int, got {num_envs!r}.")
     _check_mujoco_id(env_name)
     if num_envs == 1:
-        base = GymEnv(env_name, device=device)
-        _check_is_mujoco(env_name, base._env)
+        base = SingleGymEnv(env_name, device=device)
+        _check_is_mujoco(env_name, base.gym_env)
     else:
         env_fn = functools.partial(_make_single_mujoco, env_name)
         vec_env = gym.vector.SyncVectorEnv(
             [env_fn] * num_envs, autoreset_mode=gym.vector.AutoresetMode.DISABLED
         )
-        base = _VecGymWrapper(vec_env, device=device)
+        base = VectorGymWrapper(vec_env, device=device)
     env = TransformedEnv(base, DoubleToFloat())
     if seed is not None:
         env.set_seed(seed)

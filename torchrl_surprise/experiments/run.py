@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import copyreg
 import csv
+import importlib
 import os
 import random
+import signal
+import types
 from collections import deque
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -12,10 +16,33 @@ from typing import Any
 
 import numpy as np
 import torch
+import torch.utils.deterministic
 from tensordict import TensorDictBase
 
+
+def _pickle_module_by_name(module: types.ModuleType):
+    return importlib.import_module, (module.__name__,)
+
+
+# Hydra's joblib and submitit launchers send the task function to their workers
+# with cloudpickle, which pickles a script's function by value together with the
+# torch submodules its code names; torch.utils.deterministic is a ModuleType
+# subclass that cloudpickle cannot pickle, so it is pickled by name instead.
+copyreg.pickle(type(torch.utils.deterministic), _pickle_module_by_name)
+
 __all__ = [
+    "RESUMABLE_CHANGES",
+    "RESUME_MODES",
+    "Checkpointer",
     "EpisodeStats",
+    "Progress",
+    "RNGState",
+    "StopSignal",
+    "config_differences",
+    "find_scalar_log",
+    "plot_scalar_logs",
+    "resume_command",
+    "truncate_scalar_logs",
     "evaluate_episodes",
     "get_run_logger",
     "get_rng_state",
@@ -87,12 +114,108 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     return torch.load(path, weights_only=False)
 
 
-def prepare_run(cfg, run_dir: str | os.PathLike) -> tuple[Path, dict[str, Any] | None]:
-    """What every recipe does first: threads, seeds, resolved config, checkpoint.
+RESUMABLE_CHANGES: tuple[str, ...] = (
+    "resume",
+    "torch_threads",
+    "collector.total_frames",
+    "eval",
+    "logger",
+    "checkpoint",
+)
+"""Config entries (and sections) that may change when a run resumes.
 
-    Sets ``torch.set_num_threads(cfg.torch_threads)``, seeds with ``cfg.seed``,
-    writes ``config_resolved.yaml`` into ``run_dir`` and, with ``cfg.resume``,
-    loads ``<run_dir>/checkpoint.pt`` (a clear error when there is none).
+They decide how long a run goes on and what it reports, not what it learns; any
+other difference between the checkpoint's config and the resumed one is refused.
+"""
+
+RESUME_MODES: tuple[str, ...] = ("auto", "true", "false")
+"""``resume``: ``auto`` continues from a checkpoint if there is one, else starts;
+``true`` requires a checkpoint; ``false`` requires a run directory without one."""
+
+
+def _resume_mode(value) -> str:
+    mode = str(value).lower()
+    if mode not in RESUME_MODES:
+        raise ValueError(f"resume must be one of {RESUME_MODES}, got {value!r}.")
+    return mode
+
+
+def _flatten(config: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    flat: dict[str, Any] = {}
+    for key, value in config.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            flat.update(_flatten(value, name + "."))
+        else:
+            flat[name] = value
+    return flat
+
+
+def config_differences(
+    saved: Mapping[str, Any],
+    current: Mapping[str, Any],
+    allowed: Sequence[str] = RESUMABLE_CHANGES,
+) -> list[str]:
+    """The settings that differ between two configs, outside ``allowed``.
+
+    Args:
+        saved: the config a checkpoint was written under (nested mapping).
+        current: the config of the run that would resume it.
+        allowed: entries or whole sections (``"logger"``) that may differ.
+
+    Returns:
+        ``"name: saved -> current"`` for each differing setting, sorted.
+
+    Examples:
+        >>> config_differences({"env": {"name": "A"}, "logger": {"backend": "csv"}},
+        ...                    {"env": {"name": "B"}, "logger": {"backend": ""}})
+        ["env.name: 'A' -> 'B'"]
+    """
+    old, new = _flatten(saved), _flatten(current)
+    diffs = []
+    for name in sorted(set(old) | set(new)):
+        if any(name == a or name.startswith(a + ".") for a in allowed):
+            continue
+        missing = "<absent>"
+        before, after = old.get(name, missing), new.get(name, missing)
+        if before != after:
+            diffs.append(f"{name}: {before!r} -> {after!r}")
+    return diffs
+
+
+def truncate_scalar_logs(log_dir: str | os.PathLike, max_step: int) -> int:
+    """Drops the rows of TorchRL ``CSVLogger`` scalar files logged after ``max_step``.
+
+    A run killed after its checkpoint has logged steps that its resumed run logs
+    again; cutting them at the checkpoint keeps each step logged once.
+
+    Returns:
+        The number of rows removed.
+    """
+    removed = 0
+    for path in sorted(Path(log_dir).glob("**/scalars/**/*.csv")):
+        rows = path.read_text().splitlines(keepends=True)
+        kept = [
+            r for r in rows if r.strip() and int(float(r.split(",")[0])) <= max_step
+        ]
+        if len(kept) != len(rows):
+            removed += len(rows) - len(kept)
+            tmp = path.with_name(path.name + ".tmp")
+            tmp.write_text("".join(kept))
+            os.replace(tmp, path)
+    return removed
+
+
+def prepare_run(cfg, run_dir: str | os.PathLike) -> tuple[Path, dict[str, Any] | None]:
+    """What every recipe does first: threads, seeds, resume checks, resolved config.
+
+    Sets ``torch.set_num_threads(cfg.torch_threads)`` and seeds with ``cfg.seed``.
+    With ``cfg.resume`` ``auto`` (or ``true``) and a ``<run_dir>/checkpoint.pt``,
+    loads it, refuses it if the experiment changed (:func:`config_differences`,
+    naming each setting), and cuts the CSV logs at the checkpoint's frame so each
+    step stays logged once. ``resume=false`` refuses a directory that already holds
+    a checkpoint, so that nothing computed is overwritten. Writes
+    ``config_resolved.yaml`` once the checks pass.
 
     Returns:
         ``(checkpoint_path, checkpoint or None)``.
@@ -101,18 +224,177 @@ def prepare_run(cfg, run_dir: str | os.PathLike) -> tuple[Path, dict[str, Any] |
 
     run_dir = Path(run_dir)
     ckpt_path = run_dir / "checkpoint.pt"
+    mode = _resume_mode(cfg.resume)
     torch.set_num_threads(cfg.torch_threads)
     seed_everything(cfg.seed)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "config_resolved.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
-    if not cfg.resume:
-        return ckpt_path, None
-    if not ckpt_path.exists():
+    config = OmegaConf.to_container(cfg, resolve=True)
+    ckpt = None
+    if ckpt_path.exists():
+        if mode == "false":
+            raise FileExistsError(
+                f"{run_dir} already holds a checkpoint: pass resume=auto to continue "
+                "it, or another hydra.run.dir to start a new run."
+            )
+        ckpt = load_checkpoint(ckpt_path)
+        diffs = config_differences(ckpt["config"], config)
+        if diffs:
+            raise ValueError(
+                f"Cannot resume {run_dir}: the experiment changed ("
+                + "; ".join(diffs)
+                + "). Only these settings may change on resume: "
+                + ", ".join(RESUMABLE_CHANGES)
+                + ". Start a new run directory for a new experiment."
+            )
+        truncate_scalar_logs(run_dir / "logs", ckpt["frames"])
+    elif mode == "true":
         raise FileNotFoundError(
             f"resume=true but there is no checkpoint at {ckpt_path}; pass the run "
             "directory of the run to resume as hydra.run.dir=<dir>."
         )
-    return ckpt_path, load_checkpoint(ckpt_path)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "config_resolved.yaml").write_text(OmegaConf.to_yaml(config))
+    return ckpt_path, ckpt
+
+
+class Progress:
+    """Counters of a run (frames, and the next frame to evaluate or checkpoint at).
+
+    Examples:
+        >>> p = Progress(frames=0, next_eval=100)
+        >>> p.frames += 64
+        >>> Progress(frames=0, next_eval=0).load_state_dict(p.state_dict())
+    """
+
+    def __init__(self, **counters: int):
+        self.__dict__.update(counters)
+
+    def state_dict(self) -> dict[str, int]:
+        return dict(self.__dict__)
+
+    def load_state_dict(self, state: Mapping[str, int]) -> None:
+        self.__dict__.update(state)
+
+
+class RNGState:
+    """The Python, NumPy and torch generators as a checkpointable object."""
+
+    def state_dict(self) -> dict[str, Any]:
+        return get_rng_state()
+
+    def load_state_dict(self, state: Mapping[str, Any]) -> None:
+        set_rng_state(state)
+
+
+class Checkpointer:
+    """One mapping of what a run saves, used both to save and to load.
+
+    Every value is an object with ``state_dict()`` / ``load_state_dict()``
+    (modules, optimisers, transforms, collectors, :class:`Progress`,
+    :class:`RNGState`); ``None`` entries are skipped. Loading follows the mapping's
+    order, so put :class:`RNGState` last: building the run consumed random numbers.
+
+    Args:
+        path: the checkpoint file (written atomically).
+        components: name -> object.
+        config: the resolved run config, saved with the state so that a resume
+            can refuse a changed experiment (:func:`prepare_run`).
+
+    Examples:
+        >>> import tempfile, os
+        >>> net = torch.nn.Linear(2, 2); progress = Progress(frames=128)
+        >>> path = os.path.join(tempfile.mkdtemp(), "ckpt.pt")
+        >>> Checkpointer(path, {"net": net, "progress": progress}, config={}).save()
+        >>> other = Progress(frames=0)
+        >>> Checkpointer(path, {"net": torch.nn.Linear(2, 2), "progress": other},
+        ...              config={}).load(load_checkpoint(path))
+        >>> other.frames
+        128
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        components: Mapping[str, Any],
+        config: Mapping[str, Any],
+    ):
+        self.path = Path(path)
+        self.components = {k: v for k, v in components.items() if v is not None}
+        self.config = config
+
+    def save(self) -> None:
+        state = {name: obj.state_dict() for name, obj in self.components.items()}
+        state["config"] = self.config
+        # The frame count sits at the top level for tools that only read that.
+        progress = self.components.get("progress")
+        if progress is not None:
+            state["frames"] = progress.frames
+        save_checkpoint(self.path, state)
+
+    def load(self, state: Mapping[str, Any]) -> None:
+        missing = [name for name in self.components if name not in state]
+        if missing:
+            raise KeyError(
+                f"{self.path} holds no {missing}: it was written by another "
+                "version of this recipe, or for another experiment."
+            )
+        for name, obj in self.components.items():
+            obj.load_state_dict(state[name])
+
+
+class StopSignal:
+    """Turns SIGINT and SIGTERM into a request to stop after the current update.
+
+    A training loop checks it once per iteration; when set, it saves a checkpoint
+    and exits (a cluster scheduler sends SIGTERM before preemption; Ctrl-C sends
+    SIGINT). A second SIGINT interrupts at once.
+
+    Examples:
+        >>> import os, signal
+        >>> stop = StopSignal()
+        >>> os.kill(os.getpid(), signal.SIGTERM)
+        >>> bool(stop), stop.name
+        (True, 'SIGTERM')
+        >>> stop.restore()
+    """
+
+    def __init__(self, signals: Sequence[int] = (signal.SIGINT, signal.SIGTERM)):
+        self.received: int | None = None
+        self._previous = {sig: signal.signal(sig, self._handle) for sig in signals}
+
+    def _handle(self, signum, frame) -> None:
+        if self.received == signal.SIGINT and signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        self.received = signum
+
+    def __bool__(self) -> bool:
+        return self.received is not None
+
+    @property
+    def name(self) -> str:
+        return signal.Signals(self.received).name if self.received else ""
+
+    def restore(self) -> None:
+        """Puts back the handlers that were installed before."""
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+
+def resume_command(run_dir: str | os.PathLike) -> str:
+    """The command line that resumes the current Hydra run in ``run_dir``."""
+    import sys
+
+    try:
+        from hydra.core.hydra_config import HydraConfig
+
+        overrides = [
+            o
+            for o in HydraConfig.get().overrides.task
+            if not o.startswith(("resume=", "hydra.run.dir="))
+        ]
+    except (ImportError, ValueError):
+        overrides = []
+    args = [sys.argv[0], *overrides, f"hydra.run.dir={run_dir}", "resume=true"]
+    return "python " + " ".join(args)
 
 
 class EpisodeStats:
@@ -318,3 +600,38 @@ def plot_learning_curves(
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
+
+
+def find_scalar_log(log_dir: str | os.PathLike, name: str) -> Path:
+    """The CSV file of scalar ``name`` (e.g. ``"train/episode_return"``) under a run's
+    ``logs`` directory, whatever the experiment folder TorchRL's ``CSVLogger`` made."""
+    matches = sorted(Path(log_dir).glob(f"*/scalars/{name}.csv"))
+    if not matches:
+        raise FileNotFoundError(f"no scalar log {name!r} under {log_dir}")
+    return matches[0]
+
+
+def plot_scalar_logs(
+    log_dir: str | os.PathLike,
+    name: str,
+    path: str | os.PathLike,
+    *,
+    label: str = "",
+    title: str = "",
+    ylabel: str = "",
+) -> Path | None:
+    """Plots one logged scalar against frames, read back from the run's CSV logs.
+
+    Returns ``None`` (and draws nothing) when the run logged no such scalar, for
+    instance with ``logger.backend=`` (no logger).
+    """
+    try:
+        steps, values = read_scalar_csv(find_scalar_log(log_dir, name))
+    except FileNotFoundError:
+        return None
+    return plot_learning_curves(
+        {label or name: (steps, values)},
+        path,
+        title=title,
+        ylabel=ylabel or name,
+    )

@@ -314,6 +314,14 @@ class StochasticityTransform(Transform):
         self._set_seed(seed)
         return seed
 
+    def get_extra_state(self) -> dict:
+        # In the state_dict, so that a checkpoint continues the same noise sequence.
+        return {"seed": self.seed, "generator": self._generator.get_state()}
+
+    def set_extra_state(self, state: dict) -> None:
+        self.seed = state["seed"]
+        self._generator.set_state(state["generator"])
+
     def clone(self) -> StochasticityTransform:
         """A copy without parent, with its own generator in the same state."""
         other = super().clone()
