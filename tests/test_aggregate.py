@@ -1,0 +1,280 @@
+"""The aggregation command on a fake sweep whose every number is known by hand.
+
+Task ``MiniGrid-Fake-v0`` (oracle mean return 0.8) has two settings from Hydra
+overrides, 4 seeds each, logged every 1000 frames up to 10000. The ``vae`` seeds
+ramp linearly to normalised final returns 1.3, 0.55, 0.75 and 0.25; the ``none``
+seeds stay at 0 (seed 0 logged step 5000 twice, first 0.5 then 0). Task
+``HalfCheetah-v5`` has no oracle return: a setting named in the config and one
+labelled by its bonus (no overrides file), 2 seeds each, one of them killed at
+6000 of 10000 frames.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from torchrl_surprise.experiments.aggregate import (
+    extract_run_data,
+    find_runs,
+    main,
+    setting_label,
+)
+
+MINIGRID, CHEETAH = "MiniGrid-Fake-v0", "HalfCheetah-v5"
+ORACLE_RETURN = 0.8
+#: Normalised final train return of each seed of the vae setting.
+VAE_FINALS = [1.3, 0.55, 0.75, 0.25]
+STEPS = list(range(0, 10001, 1000))
+REPS = 50
+
+
+def write_run(
+    run_dir: Path,
+    config: dict,
+    overrides: list[str] | None,
+    scalars: dict[str, list[tuple[int, float]]],
+    algo: str = "a2c",
+) -> None:
+    """A run directory as the recipes leave it: config, overrides, CSVLogger files."""
+    run_dir.mkdir(parents=True)
+    (run_dir / "config_resolved.yaml").write_text(yaml.safe_dump(config))
+    if overrides is not None:
+        (run_dir / ".hydra").mkdir()
+        (run_dir / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump(overrides))
+    for name, rows in scalars.items():
+        path = run_dir / "logs" / algo / "scalars" / f"{name}.csv"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text("".join(f"{step},{value}\n" for step, value in rows))
+
+
+def minigrid_run(root: Path, bonus: str, seed: int, final: float) -> None:
+    raw = [(s, final * ORACLE_RETURN * s / 10000) for s in STEPS]
+    if bonus == "none" and seed == 0:
+        # A resumed run logged step 5000 again: the second value is the one kept.
+        raw.insert(5, (5000, 0.5))
+    overrides = [f"bonus={bonus}", f"seed={seed}", f"env.name={MINIGRID}"]
+    overrides += ["+experiment=fake", "hydra.job.chdir=false"]
+    if bonus == "vae":
+        overrides.append("intrinsic.coef=0.1")
+    config = {
+        "seed": seed,
+        "bonus": bonus,
+        "env": {"name": MINIGRID},
+        "collector": {"total_frames": 10000},
+    }
+    write_run(
+        root / ",".join(overrides[:3]),
+        config,
+        overrides,
+        {
+            # The moving mean is NaN until an episode ends: dropped.
+            "train/episode_return": [(0, float("nan")), *raw[1:]],
+            "train/success_rate": [(s, float(v > 0)) for s, v in raw],
+            "eval/episode_return": [(s, v) for s, v in raw if s % 5000 == 0],
+        },
+    )
+
+
+def cheetah_run(root: Path, setting: str | None, seed: int, last: int) -> None:
+    config = {
+        "seed": seed,
+        "bonus": "none" if setting is None else "vae",
+        "env": {"name": CHEETAH},
+        "collector": {"total_frames": 10000},
+    }
+    if setting is not None:
+        config["setting"] = setting
+    rows = [(s, 100.0 * (seed + 1) * s / 1000) for s in STEPS if s <= last]
+    write_run(
+        root / f"{setting}_{seed}",
+        config,
+        None if setting is None else ["bonus=vae", f"seed={seed}"],
+        {"train/episode_return": rows, "eval/episode_return": rows[::5]},
+        algo="ddpg",
+    )
+
+
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory) -> dict[str, Path]:
+    root = tmp_path_factory.mktemp("aggregate")
+    for seed, final in enumerate(VAE_FINALS):
+        minigrid_run(root / "runs" / "minigrid", "vae", seed, final)
+        minigrid_run(root / "runs" / "minigrid", "none", seed, 0.0)
+    for seed in (0, 1):
+        cheetah_run(
+            root / "runs" / "cheetah", "cheetah_vae", seed, 6000 if seed else 10000
+        )
+        cheetah_run(root / "runs" / "cheetah", None, seed, 10000)
+    oracle = root / "oracle_returns.csv"
+    pd.DataFrame(
+        {"env": [MINIGRID, "MiniGrid-Other-v0"], "seeds": 10, "mean_return": [0.8, 0.5]}
+    ).to_csv(oracle, index=False)
+    out = root / "results"
+    argv = [str(root / "runs" / "minigrid"), str(root / "runs" / "cheetah")]
+    assert (
+        main([*argv, "--out", str(out), "--oracle", str(oracle), "--reps", str(REPS)])
+        == 0
+    )
+    return {"root": root, "out": out, "oracle": oracle}
+
+
+def read(out: Path, name: str) -> pd.DataFrame:
+    return pd.read_csv(out / name, keep_default_na=False, na_values=[""])
+
+
+def summary_row(out: Path, task: str, setting: str) -> pd.Series:
+    summary = read(out, "summary.csv")
+    rows = summary[(summary["task"] == task) & (summary["setting"] == setting)]
+    assert len(rows) == 1
+    return rows.iloc[0]
+
+
+def test_setting_labels(sweep):
+    summary = read(sweep["out"], "summary.csv")
+    assert list(zip(summary["task"], summary["setting"], summary["seeds"])) == [
+        (CHEETAH, "cheetah_vae", 2),
+        (CHEETAH, "none", 2),
+        (MINIGRID, "bonus=none", 4),
+        (MINIGRID, "bonus=vae,intrinsic.coef=0.1", 4),
+    ]
+    assert setting_label({"bonus": "icm", "setting": ""}, ["seed=3"]) == "icm"
+
+
+def test_final_iqm_is_the_mean_of_the_middle_two_normalised_seeds(sweep):
+    row = summary_row(sweep["out"], MINIGRID, "bonus=vae,intrinsic.coef=0.1")
+    middle = sorted(VAE_FINALS)[1:3]
+    assert row["train_return_iqm"] == pytest.approx(np.mean(middle), abs=1e-4)
+    assert row["train_return_mean"] == pytest.approx(np.mean(VAE_FINALS), abs=1e-4)
+    assert (
+        row["train_return_ci_low"]
+        <= row["train_return_iqm"]
+        <= row["train_return_ci_high"]
+    )
+    assert row["train_return_seeds"] == 4
+    assert row["budget"] == 10000
+    # Success is not normalised; the eval return is, at its own last step <= budget.
+    assert row["train_success_iqm"] == pytest.approx(1.0)
+    assert row["eval_return_iqm"] == pytest.approx(np.mean(middle), abs=1e-4)
+    assert pd.isna(row["eval_success_iqm"]) and row["eval_success_seeds"] == 0
+
+
+def test_oracle_normalises_only_the_tasks_it_knows(sweep):
+    row = summary_row(sweep["out"], MINIGRID, "bonus=vae,intrinsic.coef=0.1")
+    assert bool(row["normalized"]) and row["oracle_return"] == ORACLE_RETURN
+    runs = read(sweep["out"], "runs.csv")
+    raw = runs[
+        (runs["task"] == MINIGRID)
+        & (runs["seed"] == 0)
+        & runs["setting"].str.startswith("bonus=vae")
+        & (runs["metric"] == "train/episode_return")
+    ]
+    # runs.csv keeps raw returns: 1.3 of an oracle return of 0.8.
+    assert raw["value"].iloc[-1] == pytest.approx(1.3 * ORACLE_RETURN)
+    cheetah = summary_row(sweep["out"], CHEETAH, "none")
+    assert not bool(cheetah["normalized"]) and pd.isna(cheetah["oracle_return"])
+    # Seeds 0 and 1 reach 100 and 200 per 1000 frames; the budget is 6000 frames.
+    assert cheetah["train_return_mean"] == pytest.approx(900.0)
+    assert pd.isna(cheetah["median_frames_to_0.5"])
+
+
+def test_frames_to_threshold_per_seed_and_censoring(sweep):
+    table = read(sweep["out"], "frames_to_threshold.csv")
+    vae = table[table["setting"].str.startswith("bonus=vae")]
+    at = {(s, f): v for s, f, v in zip(vae["seed"], vae["fraction"], vae["frames"])}
+    assert at[0, 0.5] == 4000 and at[0, 0.8] == 7000 and at[0, 0.9] == 7000
+    assert at[1, 0.5] == 10000 and at[2, 0.5] == 7000
+    assert all(pd.isna(at[s, f]) for s, f in [(1, 0.8), (2, 0.8), (3, 0.5), (3, 0.9)])
+    assert set(table["task"]) == {MINIGRID}  # no oracle, no threshold
+    assert (table["searched_to"] == 10000).all()
+
+    row = summary_row(sweep["out"], MINIGRID, "bonus=vae,intrinsic.coef=0.1")
+    # 0.5: 4000, 7000, 10000 and one never: the median of the middle two.
+    assert row["seeds_reaching_0.5"] == 3 and row["median_frames_to_0.5"] == "8500"
+    # 0.8: one seed of four: the median is not reached.
+    assert (
+        row["seeds_reaching_0.8"] == 1 and row["median_frames_to_0.8"] == "not reached"
+    )
+
+
+def test_a_step_logged_twice_keeps_its_last_value(sweep):
+    runs = read(sweep["out"], "runs.csv")
+    mine = runs[
+        (runs["setting"] == "bonus=none")
+        & (runs["seed"] == 0)
+        & (runs["metric"] == "train/episode_return")
+    ]
+    assert mine["frames"].tolist() == STEPS[1:]  # NaN at step 0 dropped, 5000 once
+    assert mine.loc[mine["frames"] == 5000, "value"].tolist() == [0.0]
+    row = summary_row(sweep["out"], MINIGRID, "bonus=none")
+    assert row["seeds_reaching_0.5"] == 0
+
+
+def test_an_unfinished_run_is_marked_and_sets_the_budget(sweep):
+    meta = read(sweep["out"], "runs_meta.csv")
+    cheetah = meta[meta["task"] == CHEETAH].set_index(["setting", "seed"])
+    assert cheetah.loc[("cheetah_vae", 1), "last_frame"] == 6000
+    assert not cheetah.loc[("cheetah_vae", 1), "finished"]
+    assert cheetah["finished"].sum() == 3 and meta["finished"].sum() == 11
+    assert summary_row(sweep["out"], CHEETAH, "cheetah_vae")["seeds_unfinished"] == 1
+    assert summary_row(sweep["out"], CHEETAH, "none")["budget"] == 6000
+
+
+def test_probability_of_improvement(sweep):
+    table = read(sweep["out"], "probability_of_improvement.csv")
+    assert len(table) == 4  # two ordered pairs per task
+    vae_over_none = table[table["setting_x"].str.startswith("bonus=vae")].iloc[0]
+    assert vae_over_none["probability"] == pytest.approx(1.0)  # every vae seed > 0
+    assert vae_over_none["seeds_x"] == vae_over_none["seeds_y"] == 4
+
+
+def test_from_data_regenerates_identical_tables(sweep, tmp_path):
+    out = sweep["out"]
+    argv = ["--from-data", str(out / "runs.csv"), "--out", str(tmp_path)]
+    np.random.seed(123)
+    expected = np.random.rand()
+    np.random.seed(123)
+    assert main([*argv, "--oracle", str(sweep["oracle"]), "--reps", str(REPS)]) == 0
+    # The bootstraps seed NumPy's global generator and give it back untouched.
+    assert np.random.rand() == expected
+    for name in (
+        "summary.csv",
+        "frames_to_threshold.csv",
+        "probability_of_improvement.csv",
+    ):
+        assert (tmp_path / name).read_bytes() == (out / name).read_bytes(), name
+    for name in ("curves.png", "performance_profiles.png"):
+        assert (out / name).stat().st_size > 0 and (tmp_path / name).stat().st_size > 0
+
+
+def test_a_budget_reads_each_run_at_its_last_point_before_it(sweep, tmp_path):
+    argv = [str(sweep["root"] / "runs" / "cheetah"), "--out", str(tmp_path)]
+    assert main([*argv, "--budget", "8500", "--reps", str(REPS)]) == 0
+    row = summary_row(tmp_path, CHEETAH, "cheetah_vae")
+    assert row["budget"] == 8500 and row["seeds_short_of_budget"] == 1
+    # Seed 0 at 8000 frames (800), seed 1 at its last point, 6000 (1200).
+    assert row["train_return_mean"] == pytest.approx(1000.0)
+
+
+def test_extract_keeps_at_most_max_points_and_the_last(sweep):
+    runs = find_runs([sweep["root"] / "runs" / "minigrid"])
+    data = extract_run_data(runs, max_points=4)
+    counts = data.groupby(["setting", "seed", "metric"])["frames"].agg(["size", "max"])
+    assert counts["size"].max() == 4 and (counts["max"] == 10000).all()
+
+
+def test_no_run_directory_is_a_clear_error(tmp_path, capsys):
+    empty = tmp_path / "empty_sweep"
+    empty.mkdir()
+    with pytest.raises(SystemExit):
+        main([str(empty), "--out", str(tmp_path / "out")])
+    assert "no run directory" in capsys.readouterr().err
+    with pytest.raises(FileNotFoundError, match="empty_sweep"):
+        find_runs([empty])
+    with pytest.raises(SystemExit):
+        main([str(tmp_path / "missing"), "--out", str(tmp_path / "out")])
+    assert str(tmp_path / "missing") in capsys.readouterr().err
