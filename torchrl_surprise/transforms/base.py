@@ -11,21 +11,25 @@ sample through ``forward``). A bonus is a subclass that implements
 from __future__ import annotations
 
 import copy
+import itertools
 import math
-from collections.abc import Callable, Sequence
+import warnings
+import weakref
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 
 import torch
 from tensordict import TensorDictBase
 from tensordict.utils import NestedKey, unravel_key
 from torchrl.data.tensor_specs import Composite, Unbounded
-from torchrl.envs.transforms import Transform
+from torchrl.envs.transforms import Compose, Transform
 from torchrl.envs.transforms.rnd import RunningMeanStd
 
 __all__ = [
     "IntrinsicRewardTransform",
     "LinearSchedule",
     "NORMALIZATIONS",
+    "WorkerCopyWarning",
     "make_coef_schedule",
 ]
 
@@ -96,6 +100,81 @@ def make_coef_schedule(
     )
 
 
+class WorkerCopyWarning(UserWarning):
+    """A bonus transform sits in the env of a ``SerialEnv``/``ParallelEnv`` worker.
+
+    Each worker then holds its own copy of the transform's normalisation
+    statistics and frame counter and, in a ``ParallelEnv``, of the bonus model:
+    training the model in the main process never changes the workers' bonus.
+    The transform belongs on the outer env, ``TransformedEnv(ParallelEnv(...),
+    transform)``, or on collected batches, ``transform(batch)``. Silence it with
+    ``warnings.filterwarnings("ignore", category=WorkerCopyWarning)`` where the
+    copies are intended (a frozen model, per-worker statistics).
+
+    Examples:
+        >>> import warnings
+        >>> from torchrl.envs import SerialEnv, TransformedEnv
+        >>> from torchrl.testing.mocking_classes import ContinuousActionVecMockEnv
+        >>> from torchrl_surprise import StateVAE, VAESurpriseTransform
+        >>> def make_env():  # the bonus inside each worker's env
+        ...     vae = StateVAE.for_vector(7, latent_dim=4, hidden_dim=16)
+        ...     bonus = VAESurpriseTransform(vae)
+        ...     return TransformedEnv(ContinuousActionVecMockEnv(), bonus)
+        >>> with warnings.catch_warnings(record=True) as caught:
+        ...     warnings.simplefilter("always")
+        ...     env = SerialEnv(2, make_env)
+        >>> any(issubclass(w.category, WorkerCopyWarning) for w in caught)
+        True
+        >>> env.close(raise_if_closed=False)
+    """
+
+
+@dataclass(frozen=True)
+class _Contribution:
+    """A bonus mixed into a reward by a transform's batch path."""
+
+    # The transform's token; its clones share it, as they compute the same bonus.
+    token: int
+    name: str
+    keys: frozenset  # the keys it wrote besides the reward
+
+
+# Distinguishes transforms (not ``id``, which a new transform may reuse).
+_TOKENS = itertools.count()
+
+# The mixed rewards that batch paths have written and that are still alive, by
+# identity: ``id(reward) -> (weakref to it, the bonuses mixed in it)``. A bonus
+# transform handed one of them knows which bonuses it holds, so stacked
+# transforms (a Compose, or called one after the other) mix into the reward just
+# remixed before them instead of into their stale copy of it, and a transform
+# finding its own bonus there starts again from its extrinsic reward.
+_MIXED_REWARDS: dict[int, tuple[weakref.ref, tuple[_Contribution, ...]]] = {}
+
+
+def _remember_mix(reward: torch.Tensor, mixed: tuple[_Contribution, ...]) -> None:
+    key = id(reward)
+
+    def forget(_, key=key):
+        _MIXED_REWARDS.pop(key, None)
+
+    _MIXED_REWARDS[key] = (weakref.ref(reward, forget), mixed)
+
+
+def _mixed_in(reward: torch.Tensor) -> tuple[_Contribution, ...] | None:
+    entry = _MIXED_REWARDS.get(id(reward))
+    if entry is None or entry[0]() is not reward:
+        return None
+    return entry[1]
+
+
+def _bonus_transforms(compose: Compose) -> Iterator[IntrinsicRewardTransform]:
+    for transform in compose.transforms:
+        if isinstance(transform, Compose):
+            yield from _bonus_transforms(transform)
+        elif isinstance(transform, IntrinsicRewardTransform):
+            yield transform
+
+
 class IntrinsicRewardTransform(Transform):
     """Base class of the bonus transforms: keys, specs, normalisation, mixing.
 
@@ -128,7 +207,21 @@ class IntrinsicRewardTransform(Transform):
     the transform is frozen (:meth:`freeze`; :meth:`frozen_copy` for evaluation),
     as for TorchRL's ``VecNormV2``: not by ``train()``/``eval()``, which TorchRL
     sets on its own when it attaches a transform to an env or a buffer. They are
-    buffers, so they are part of ``state_dict``.
+    buffers, so they are part of ``state_dict``, which also records
+    ``normalization``: a ``state_dict`` does not load into a transform that
+    normalises differently (its statistics would be meaningless there).
+
+    Stacking bonuses: each transform needs its own ``intrinsic_reward_key`` and
+    ``extrinsic_reward_key``. The second then adds its bonus to the reward it
+    receives and keeps that reward under its ``extrinsic_reward_key``, while the
+    first one's stays the task reward; on a batch, the second mixes into the
+    reward the first has just recomputed. Transforms that would write the same
+    keys are refused: in one ``Compose``, on an env whose reward spec already
+    has them, and on a batch whose reward another transform has just mixed.
+
+    Inside the env of a ``SerialEnv``/``ParallelEnv`` worker the transform emits
+    a :class:`WorkerCopyWarning`: its statistics, and in a ``ParallelEnv`` its
+    model, are per-worker copies that the main process never sees.
 
     Args:
         in_keys (sequence of NestedKey): observation keys the bonus reads.
@@ -151,6 +244,33 @@ class IntrinsicRewardTransform(Transform):
             of transitions of every call while not frozen. Set it to ``False``
             when the transform recomputes bonuses of replay-buffer samples (which
             are not new frames) and drive the counter with :meth:`set_frames`.
+
+    Examples:
+        Two bonuses on one env, the second with its own keys:
+
+        >>> import torch
+        >>> from torchrl.envs import Compose, TransformedEnv
+        >>> from torchrl.testing.mocking_classes import ContinuousActionVecMockEnv
+        >>> from torchrl_surprise import (
+        ...     ICMModel, ICMTransform, StateVAE, VAESurpriseTransform)
+        >>> vae = StateVAE.for_vector(7, latent_dim=4, hidden_dim=16)
+        >>> icm = ICMModel.for_vector(7, 7, hidden_dim=16)
+        >>> env = TransformedEnv(ContinuousActionVecMockEnv(), Compose(
+        ...     VAESurpriseTransform(vae, coef=0.5),
+        ...     ICMTransform(icm, coef=0.1, intrinsic_reward_key="icm_reward",
+        ...                  extrinsic_reward_key="reward_before_icm")))
+        >>> nxt = env.rollout(3)["next"]
+        >>> task, vae_bonus, icm_bonus = (
+        ...     nxt["extrinsic_reward"], nxt["intrinsic_reward"], nxt["icm_reward"])
+        >>> torch.allclose(nxt["reward"], task + 0.5 * vae_bonus + 0.1 * icm_bonus)
+        True
+
+        With the same keys, the second would overwrite the first's bonus:
+
+        >>> Compose(VAESurpriseTransform(vae), ICMTransform(icm))
+        Traceback (most recent call last):
+            ...
+        ValueError: ICMTransform would write ('next', 'intrinsic_reward'), ...
     """
 
     def __init__(
@@ -183,6 +303,14 @@ class IntrinsicRewardTransform(Transform):
             raise ValueError(f"gamma must be in [0, 1], got {gamma}.")
         if clip is not None and clip <= 0:
             raise ValueError(f"clip must be positive, got {clip}.")
+        keys = [unravel_key(intrinsic_reward_key), unravel_key(extrinsic_reward_key)]
+        if reward_key is not None:
+            keys.append(unravel_key(reward_key))
+        if len(set(keys)) != len(keys):
+            raise ValueError(
+                f"{type(self).__name__}: intrinsic_reward_key, extrinsic_reward_key "
+                f"and reward_key must be distinct, got {keys}."
+            )
         super().__init__(in_keys=list(in_keys), out_keys=[intrinsic_reward_key])
         self.intrinsic_reward_key = unravel_key(intrinsic_reward_key)
         self.reward_key = None if reward_key is None else unravel_key(reward_key)
@@ -195,6 +323,7 @@ class IntrinsicRewardTransform(Transform):
         self.time_dim = time_dim
         self.count_frames = count_frames
         self._frozen = False
+        self._bonus_token = next(_TOKENS)
         self.reward_rms = RunningMeanStd(shape=())
         self.register_buffer("frames", torch.zeros((), dtype=torch.long))
         self.register_buffer("_return_acc", torch.zeros(0))
@@ -217,6 +346,50 @@ class IntrinsicRewardTransform(Transform):
         if self.reward_key is not None:
             keys.append(self.extrinsic_reward_key)
         return keys
+
+    def _contribution(self) -> _Contribution:
+        return _Contribution(
+            token=self._bonus_token,
+            name=type(self).__name__,
+            keys=frozenset(self._written_reward_keys()),
+        )
+
+    def _clash_error(self, clashing: Sequence[NestedKey], writer: str) -> ValueError:
+        """The error for keys this transform would write over ``writer``'s."""
+        stem = type(self).__name__.removesuffix("Transform").lower()
+        keys = ", ".join(
+            repr(("next", *(key if isinstance(key, tuple) else (key,))))
+            for key in clashing
+        )
+        return ValueError(
+            f"{type(self).__name__} would write {keys}, which {writer} already "
+            "writes: it would overwrite that bonus (or the reward kept there) and "
+            "lose it silently. To stack bonuses, give this transform its own keys, "
+            f"e.g. {type(self).__name__}(..., intrinsic_reward_key='{stem}_reward', "
+            f"extrinsic_reward_key='reward_before_{stem}'): it then adds its bonus "
+            "to the reward it receives and keeps that reward under its "
+            "extrinsic_reward_key."
+        )
+
+    def set_container(self, container) -> None:
+        """Attaches the transform; refuses a ``Compose`` whose bonuses share keys."""
+        super().set_container(container)
+        if not isinstance(container, Compose):
+            return
+        bonuses = list(_bonus_transforms(container))
+        if self not in bonuses:  # nested: the outer Compose checks it
+            return
+        for other in bonuses:
+            if other is self:
+                continue
+            # Reported against the later one: it is the one to give other keys.
+            earlier, later = sorted((self, other), key=bonuses.index)
+            theirs = set(earlier._written_reward_keys())
+            clashing = [k for k in later._written_reward_keys() if k in theirs]
+            if clashing:
+                raise later._clash_error(
+                    clashing, f"{type(earlier).__name__}, earlier in the same Compose,"
+                )
 
     # ----------------------------------------------------- coef and schedule
     def current_coef(self) -> float:
@@ -253,12 +426,53 @@ class IntrinsicRewardTransform(Transform):
         other._return_acc = self._return_acc.clone()
         return other.freeze()
 
-    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+    def get_extra_state(self) -> dict:
+        """What a ``state_dict`` is tied to: the ``normalization`` of its statistics."""
+        return {"normalization": self.normalization}
+
+    def set_extra_state(self, state) -> None:
+        # Checked in _load_from_state_dict, before anything is loaded.
+        pass
+
+    def _load_from_state_dict(
+        self,
+        state_dict,
+        prefix,
+        local_metadata,
+        strict,
+        missing_keys,
+        unexpected_keys,
+        error_msgs,
+    ):
+        # torch's key for get_extra_state().
+        extra_key = prefix + "_extra_state"
+        saved = state_dict.get(extra_key)
+        if isinstance(saved, Mapping):
+            normalization = saved.get("normalization", self.normalization)
+            if normalization != self.normalization:
+                raise ValueError(
+                    f"{type(self).__name__}: this state_dict was saved with "
+                    f"normalization={normalization!r}, but this transform uses "
+                    f"normalization={self.normalization!r}; its running statistics "
+                    f"do not apply here. Build the transform with "
+                    f"normalization={normalization!r} to load it."
+                )
         # The return accumulator takes the shape of the batches it has seen.
         acc = state_dict.get(prefix + "_return_acc")
         if acc is not None:
             self._return_acc = torch.zeros_like(acc)
-        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+        super()._load_from_state_dict(
+            state_dict,
+            prefix,
+            local_metadata,
+            strict,
+            missing_keys,
+            unexpected_keys,
+            error_msgs,
+        )
+        # State dicts saved before the record existed load as before, unchecked.
+        if saved is None and extra_key in missing_keys:
+            missing_keys.remove(extra_key)
 
     @property
     def _updating(self) -> bool:
@@ -346,11 +560,44 @@ class IntrinsicRewardTransform(Transform):
         return out
 
     # --------------------------------------------------------------- paths
+    def _received_reward(
+        self, next_tensordict: TensorDictBase, batch: bool
+    ) -> tuple[torch.Tensor, tuple[_Contribution, ...]]:
+        """The reward to mix the bonus into, and the bonuses already mixed in it."""
+        received = next_tensordict.get(self.reward_key, None)
+        mixed = _mixed_in(received) if batch and received is not None else None
+        if mixed is not None and all(c.token != self._bonus_token for c in mixed):
+            # Other bonus transforms have just mixed this reward (this one's bonus
+            # is not in it): it is what this transform receives.
+            for contribution in mixed:
+                clashing = [
+                    k for k in self._written_reward_keys() if k in contribution.keys
+                ]
+                if clashing:
+                    raise self._clash_error(
+                        clashing,
+                        f"{contribution.name}, applied to this batch just before,",
+                    )
+            return received, mixed
+        # Otherwise the reward may hold this transform's own (stale) bonus: start
+        # from the reward it kept when it first saw the transition.
+        reward = next_tensordict.get(self.extrinsic_reward_key, None)
+        if reward is None:
+            reward = received
+        if reward is None:
+            raise KeyError(
+                f"{type(self).__name__}: expected the reward key "
+                f"{self.reward_key!r} (or {self.extrinsic_reward_key!r}) in "
+                "the 'next' tensordict."
+            )
+        return reward, ()
+
     def _write_bonus(
         self,
         tensordict: TensorDictBase,
         next_tensordict: TensorDictBase,
         time_dim: int | None,
+        batch: bool,
     ) -> TensorDictBase:
         with torch.no_grad():
             bonus = self._compute_bonus(tensordict, next_tensordict)
@@ -359,17 +606,9 @@ class IntrinsicRewardTransform(Transform):
                 f"{type(self).__name__}: the bonus model produced NaN or inf; its "
                 "parameters may have diverged."
             )
-        reward = None
+        reward, mixed = None, ()
         if self.reward_key is not None:
-            reward = next_tensordict.get(self.extrinsic_reward_key, None)
-            if reward is None:
-                reward = next_tensordict.get(self.reward_key, None)
-                if reward is None:
-                    raise KeyError(
-                        f"{type(self).__name__}: expected the reward key "
-                        f"{self.reward_key!r} (or {self.extrinsic_reward_key!r}) in "
-                        "the 'next' tensordict."
-                    )
+            reward, mixed = self._received_reward(next_tensordict, batch)
         shape = reward.shape if reward is not None else (*bonus.shape, 1)
         dtype = reward.dtype if reward is not None else torch.float32
         bonus = bonus.reshape(shape).to(dtype)
@@ -384,13 +623,16 @@ class IntrinsicRewardTransform(Transform):
             next_tensordict.set(self.normalized_reward_key, normalized)
         if reward is not None:
             next_tensordict.set(self.extrinsic_reward_key, reward)
-            next_tensordict.set(self.reward_key, reward + coef * normalized)
+            mixed_reward = reward + coef * normalized
+            next_tensordict.set(self.reward_key, mixed_reward)
+            if batch:
+                _remember_mix(mixed_reward, (*mixed, self._contribution()))
         return next_tensordict
 
     def _step(
         self, tensordict: TensorDictBase, next_tensordict: TensorDictBase
     ) -> TensorDictBase:
-        return self._write_bonus(tensordict, next_tensordict, time_dim=None)
+        return self._write_bonus(tensordict, next_tensordict, None, batch=False)
 
     def _time_dim(self, tensordict: TensorDictBase) -> int | None:
         if self.time_dim is not None:
@@ -418,13 +660,30 @@ class IntrinsicRewardTransform(Transform):
                 "entry holding the next observation and the reward."
             )
         time_dim = self._time_dim(tensordict)
-        next_tensordict = self._write_bonus(tensordict, next_tensordict, time_dim)
+        next_tensordict = self._write_bonus(
+            tensordict, next_tensordict, time_dim, batch=True
+        )
         tensordict.set("next", next_tensordict)
         return tensordict
 
     # ---------------------------------------------------------------- specs
     def transform_reward_spec(self, reward_spec: Composite) -> Composite:
-        """Declares the bonus entries (and the kept extrinsic reward) as rewards."""
+        """Declares the bonus entries (and the kept extrinsic reward) as rewards.
+
+        Raises if the parent env already has one of them (another bonus
+        transform, in a nested env or in batched-env workers, or the env itself
+        writes it): this transform would overwrite it.
+        """
+        existing = set(reward_spec.keys(True, True))
+        in_keys = {unravel_key(key) for key in self.in_keys}
+        clashing = [
+            key
+            for key in self._written_reward_keys()
+            # A precomputed bonus may be read from, and rewritten to, its own key.
+            if key in existing and key not in in_keys
+        ]
+        if clashing:
+            raise self._clash_error(clashing, "the parent env")
         shape, device = reward_spec.shape, reward_spec.device
         dtype = torch.float32
         if self.reward_key is not None:
@@ -444,6 +703,22 @@ class IntrinsicRewardTransform(Transform):
             if key != self.extrinsic_reward_key:
                 reward_spec[key] = Unbounded(shape=shape, device=device, dtype=dtype)
         return reward_spec
+
+    def _check_batched_worker_compat(self) -> None:
+        # TorchRL's hook: SerialEnv and ParallelEnv call it, in the main process
+        # where a warning is seen, on the transforms of their worker envs when
+        # they are built.
+        warnings.warn(
+            WorkerCopyWarning(
+                f"{type(self).__name__} is inside the env of a SerialEnv/ParallelEnv "
+                "worker: each worker keeps its own copies of its normalisation "
+                "statistics and frame counter and, in a ParallelEnv, of its bonus "
+                "model, which training in the main process never updates. Put it on "
+                "the outer env, TransformedEnv(ParallelEnv(...), transform), or apply "
+                "it to collected batches with transform(batch)."
+            ),
+            stacklevel=2,
+        )
 
     def __repr__(self) -> str:
         return (
