@@ -11,22 +11,45 @@ from pathlib import Path
 from torchrl_surprise.experiments import load_checkpoint
 
 
+def wait_for_checkpoint(ckpt_path: Path, min_frames: int, timeout: float = 120):
+    """Waits until the checkpoint at ``ckpt_path`` holds at least ``min_frames``."""
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        try:
+            if load_checkpoint(ckpt_path)["frames"] >= min_frames:
+                return
+        except (FileNotFoundError, EOFError, RuntimeError):
+            pass  # not written yet
+        time.sleep(0.05)
+    raise TimeoutError(f"no checkpoint with {min_frames} frames at {ckpt_path}")
+
+
 def kill_after_checkpoint(cmd: list[str], ckpt_path: Path, min_frames: int) -> dict:
     """Starts ``cmd``, SIGKILLs it once its checkpoint holds ``min_frames``.
 
     Returns the checkpoint the killed run left behind.
     """
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.time() + 120
     try:
-        while time.time() < deadline:
-            if (
-                ckpt_path.exists()
-                and load_checkpoint(ckpt_path)["frames"] >= min_frames
-            ):
-                break
-            time.sleep(0.5)
+        wait_for_checkpoint(ckpt_path, min_frames)
     finally:
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait()
     return load_checkpoint(ckpt_path)
+
+
+def differing_logs(run_a: Path, run_b: Path) -> list[str]:
+    """The CSV scalar logs (all but wall-clock ``time/*``) that differ between runs."""
+    files = {
+        p.relative_to(run).as_posix()
+        for run in (run_a, run_b)
+        for p in (run / "logs").glob("**/scalars/**/*.csv")
+    }
+    files = {f for f in files if "/scalars/time/" not in f}
+    assert files, f"no scalar logs under {run_a} or {run_b}"
+    return sorted(
+        f
+        for f in files
+        if not ((run_a / f).exists() and (run_b / f).exists())
+        or (run_a / f).read_bytes() != (run_b / f).read_bytes()
+    )

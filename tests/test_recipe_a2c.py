@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import signal
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 import torch
-from _recipe_run import kill_after_checkpoint
+from _recipe_run import differing_logs, kill_after_checkpoint, wait_for_checkpoint
 
 from torchrl_surprise.experiments import load_checkpoint, read_scalar_csv
 
@@ -69,31 +70,105 @@ def test_same_seed_same_curve(tmp_path):
     assert not (losses["a"] == losses["c"]).all()
 
 
-def test_resume_after_kill_continues_the_frame_count(tmp_path):
+@pytest.mark.parametrize(
+    "overrides",
+    [["bonus=vae", "env.stochasticity=2"], ["bonus=rnd"]],
+    ids=["vae-noise", "rnd"],
+)
+def test_killed_and_resumed_run_logs_what_the_uninterrupted_run_logs(
+    tmp_path, overrides
+):
+    total = "collector.total_frames=2048"
+    run_recipe(tmp_path / "whole", *overrides, total)
+    killed_dir = tmp_path / "killed"
+    cmd = [sys.executable, str(MAIN), f"hydra.run.dir={killed_dir}", *TINY]
+    killed = kill_after_checkpoint(
+        [*cmd, *overrides, total], killed_dir / "checkpoint.pt", min_frames=256
+    )
+    assert 256 <= killed["frames"] < 2048, "the kill must land mid-run"
+    run_recipe(killed_dir, *overrides, total)
+    assert differing_logs(tmp_path / "whole", killed_dir) == []
+
+
+def test_sigint_and_sigterm_save_a_checkpoint_and_exit_cleanly(tmp_path):
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        run_dir = tmp_path / sig.name
+        cmd = [sys.executable, str(MAIN), f"hydra.run.dir={run_dir}", *TINY]
+        proc = subprocess.Popen(
+            [*cmd, "bonus=vae", "collector.total_frames=1000000"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        wait_for_checkpoint(run_dir / "checkpoint.pt", min_frames=128)
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=60)
+        assert proc.returncode == 128 + sig, err[-2000:]
+        assert "Traceback" not in err
+        assert f"{sig.name}: stopped at" in out and "Resume with:" in out
+        frames = load_checkpoint(run_dir / "checkpoint.pt")["frames"]
+        steps, _ = read_scalar_csv(run_dir / "logs/a2c/scalars/train/reward.csv")
+        assert steps[-1] == frames, "the checkpoint holds every logged step"
+    target = f"collector.total_frames={frames + 64}"
+    out = run_recipe(run_dir, "bonus=vae", target).stdout
+    assert f"Done: {frames + 64} frames" in out
+
+
+@pytest.mark.parametrize(
+    "change, setting",
+    [
+        ("env.name=MiniGrid-DoorKey-5x5-v0", "env.name"),
+        ("bonus=none", "bonus"),
+        ("intrinsic.vae.latent_dim=8", "intrinsic.vae.latent_dim"),
+    ],
+)
+def test_resume_refuses_a_changed_experiment(tmp_path, change, setting):
     run_dir = tmp_path / "run"
-    cmd = [
+    run_recipe(run_dir, "bonus=vae", "collector.total_frames=128")
+    config = (run_dir / "config_resolved.yaml").read_text()
+    proc = run_recipe(
+        run_dir, "bonus=vae", change, "collector.total_frames=256", check=False
+    )
+    assert proc.returncode != 0
+    assert "the experiment changed" in proc.stderr and setting in proc.stderr
+    assert (run_dir / "config_resolved.yaml").read_text() == config
+    assert load_checkpoint(run_dir / "checkpoint.pt")["frames"] == 128
+    # What does not change the experiment may change: longer, other logging.
+    run_recipe(run_dir, "bonus=vae", "collector.total_frames=256", "eval.episodes=2")
+
+
+def test_resume_false_never_overwrites_a_run(tmp_path):
+    run_dir = tmp_path / "run"
+    run_recipe(run_dir, "bonus=none", "collector.total_frames=128")
+    proc = run_recipe(
+        run_dir, "bonus=none", "resume=false", "collector.total_frames=256", check=False
+    )
+    assert proc.returncode != 0 and "already holds a checkpoint" in proc.stderr
+    assert load_checkpoint(run_dir / "checkpoint.pt")["frames"] == 128
+
+
+@pytest.mark.parametrize("launcher", ["local", "submitit_local"])
+def test_sweep_runs_each_job_once_and_a_rerun_starts_no_new_work(tmp_path, launcher):
+    sweep = [
         sys.executable,
         str(MAIN),
-        f"hydra.run.dir={run_dir}",
-        *TINY,
-        "bonus=vae",
-        "collector.total_frames=1000000",
+        "-m",
+        "+experiment=tiny",
+        f"hydra/launcher={launcher}",
+        f"hydra.sweep.dir={tmp_path}",
+        "collector.total_frames=256",
+        "env.num_envs=4",
     ]
-    ckpt_path = run_dir / "checkpoint.pt"
-    killed = kill_after_checkpoint(cmd, ckpt_path, min_frames=256)
-    killed_at = killed["frames"]
-    assert killed_at >= 256
-    target = killed_at + 4 * 32  # four more rollouts of 4 envs x 8 frames
-    out = run_recipe(
-        run_dir, "bonus=vae", "resume=true", f"collector.total_frames={target}"
-    )
-    ckpt = load_checkpoint(ckpt_path)
-    assert ckpt["frames"] == target
-    assert f"Done: {target} frames" in out.stdout
-    steps, _ = read_scalar_csv(
-        run_dir / "logs" / "a2c" / "scalars" / "time" / "fps.csv"
-    )
-    assert steps[-1] == target
+    first = subprocess.run(sweep, capture_output=True, text=True, timeout=600)
+    assert first.returncode == 0, first.stderr[-3000:]
+    ckpts = sorted(tmp_path.glob("*/checkpoint.pt"))
+    names = sorted(p.parent.name for p in ckpts)
+    assert len(names) == 4 and any("+setting=vae" in n and "seed=1" in n for n in names)
+    assert all(load_checkpoint(p)["frames"] == 256 for p in ckpts)
+    mtimes = [p.stat().st_mtime_ns for p in ckpts]
+    again = subprocess.run(sweep, capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert [p.stat().st_mtime_ns for p in ckpts] == mtimes
 
 
 @pytest.mark.parametrize(
@@ -104,6 +179,7 @@ def test_resume_after_kill_continues_the_frame_count(tmp_path):
         ("intrinsic.normalization=median", "intrinsic.normalization must be one of"),
         ("collector.total_frames=-5", "collector.total_frames must be a positive"),
         ("resume=true", "no checkpoint"),
+        ("resume=maybe", "resume must be one of"),
     ],
 )
 def test_bad_config_fails_clearly(tmp_path, override, message):
