@@ -4,6 +4,10 @@ This subpackage is the plumbing of a training run, not something composed into a
 TorchRL pipeline: the core of :mod:`torchrl_surprise` (modules, transforms,
 objectives, envs) never imports it, and it may import recipe tooling (OmegaConf,
 matplotlib, rliable) where a function needs it.
+
+The aggregation of a sweep's runs (IQM, bootstrap CIs, thresholds, curves) is the
+command ``python -m torchrl_surprise.experiments.aggregate``
+(:mod:`torchrl_surprise.experiments.aggregate`).
 """
 
 from torchrl_surprise.experiments.collector import ResumableCollector

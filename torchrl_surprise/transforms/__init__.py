@@ -4,6 +4,7 @@ from torchrl_surprise.transforms.base import (
     NORMALIZATIONS,
     IntrinsicRewardTransform,
     LinearSchedule,
+    WorkerCopyWarning,
     make_coef_schedule,
 )
 from torchrl_surprise.transforms.icm import ICMTransform
@@ -23,5 +24,6 @@ __all__ = [
     "STOCHASTICITY_LEVELS",
     "StochasticityTransform",
     "VAESurpriseTransform",
+    "WorkerCopyWarning",
     "make_coef_schedule",
 ]

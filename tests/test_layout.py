@@ -1,0 +1,43 @@
+"""The library/recipe boundary: what ``import torchrl_surprise`` pulls in."""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "torchrl_surprise"
+
+
+@pytest.mark.parametrize(
+    "module", ["minigrid", "hydra", "omegaconf", "matplotlib", "pandas", "rliable"]
+)
+def test_the_core_imports_no_env_package_and_no_recipe_tooling(module):
+    code = (
+        "import sys, torchrl_surprise, torchrl_surprise.modules, "
+        "torchrl_surprise.transforms, torchrl_surprise.objectives; "
+        f"print({module!r} in sys.modules, "
+        "'torchrl_surprise.experiments' in sys.modules)"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    ).stdout.split()
+    assert out == ["False", "False"], f"import torchrl_surprise imported {module}"
+
+
+def test_no_module_imports_private_names_of_another():
+    offenders = []
+    for path in PACKAGE.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith(
+                "torchrl_surprise"
+            ):
+                offenders += [
+                    f"{path.relative_to(PACKAGE)}: {node.module}.{alias.name}"
+                    for alias in node.names
+                    if alias.name.startswith("_")
+                ]
+    assert offenders == []
