@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pandas as pd
 import pytest
 import torch
 from _recipe_run import differing_logs, kill_after_checkpoint, wait_for_checkpoint
@@ -156,19 +157,28 @@ def test_sweep_runs_each_job_once_and_a_rerun_starts_no_new_work(tmp_path, launc
         "+experiment=tiny",
         f"hydra/launcher={launcher}",
         f"hydra.sweep.dir={tmp_path}",
-        "collector.total_frames=256",
+        "collector.total_frames=512",
         "env.num_envs=4",
+        "logger.log_interval=1",
     ]
     first = subprocess.run(sweep, capture_output=True, text=True, timeout=600)
     assert first.returncode == 0, first.stderr[-3000:]
     ckpts = sorted(tmp_path.glob("*/checkpoint.pt"))
     names = sorted(p.parent.name for p in ckpts)
     assert len(names) == 4 and any("+setting=vae" in n and "seed=1" in n for n in names)
-    assert all(load_checkpoint(p)["frames"] == 256 for p in ckpts)
+    assert all(load_checkpoint(p)["frames"] == 512 for p in ckpts)
     mtimes = [p.stat().st_mtime_ns for p in ckpts]
     again = subprocess.run(sweep, capture_output=True, text=True, timeout=600)
     assert again.returncode == 0, again.stderr[-3000:]
     assert [p.stat().st_mtime_ns for p in ckpts] == mtimes
+    # The aggregation command turns the sweep into a table with IQM and CIs.
+    out = tmp_path / "results"
+    cmd = [sys.executable, "-m", "torchrl_surprise.experiments.aggregate"]
+    subprocess.run([*cmd, str(tmp_path), "--out", str(out), "--reps", "50"], check=True)
+    summary = pd.read_csv(out / "summary.csv")
+    assert sorted(summary["setting"]) == ["none", "vae"]
+    assert (summary["seeds"] == 2).all()
+    assert summary[["train_return_iqm", "train_return_ci_low"]].notna().all().all()
 
 
 @pytest.mark.parametrize(

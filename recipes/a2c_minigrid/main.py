@@ -26,8 +26,10 @@ import sys
 import time
 from pathlib import Path
 
+import cloudpickle
 import hydra
 import torch
+import utils  # the builders beside this script
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import OmegaConf
@@ -53,6 +55,11 @@ from torchrl_surprise.experiments import (
     prepare_run,
     resume_command,
 )
+
+# Sweep launchers pickle this script's task function for their worker processes,
+# where the module beside the script is not importable (submitit, Ray): it travels
+# by value instead.
+cloudpickle.register_pickle_by_value(utils)
 
 EVAL_SEED_OFFSET = 10_000
 

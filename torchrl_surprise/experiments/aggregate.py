@@ -966,6 +966,10 @@ def aggregate(
     return paths
 
 
+DEFAULT_ORACLE = Path("docs/results/oracle/oracle_returns.csv")
+"""The oracle table written by ``python -m torchrl_surprise.envs.oracle``."""
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m torchrl_surprise.experiments.aggregate",
@@ -980,7 +984,13 @@ def _parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--out", type=Path, required=True, help="output directory")
     parser.add_argument("--budget", type=int, help="frames of final performance")
-    parser.add_argument("--oracle", type=Path, help="CSV with env,mean_return")
+    parser.add_argument(
+        "--oracle",
+        type=Path,
+        default=DEFAULT_ORACLE if DEFAULT_ORACLE.exists() else None,
+        help="CSV with env,mean_return (default: the committed oracle table, "
+        f"{DEFAULT_ORACLE}, when run from the repository root); 'none' to skip",
+    )
     parser.add_argument("--reps", type=int, default=2000, help="bootstrap replications")
     parser.add_argument("--seed", type=int, default=0, help="seed of the bootstrap")
     parser.add_argument(
@@ -996,7 +1006,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if bool(args.runs) == (args.from_data is not None):
         parser.error("give run directories or --from-data RUNS_CSV (one of the two)")
     try:
-        oracle = read_oracle(args.oracle) if args.oracle is not None else {}
+        use_oracle = args.oracle is not None and str(args.oracle) != "none"
+        oracle = read_oracle(args.oracle) if use_oracle else {}
         if args.from_data is not None:
             runs_csv = args.from_data
             if not runs_csv.is_file():
