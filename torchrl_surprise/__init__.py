@@ -5,7 +5,12 @@ visited states; the agent trains on ``r_ext + beta * r_int``.
 """
 
 from torchrl_surprise.modules import ICMModel, StateVAE
-from torchrl_surprise.objectives import ICMLoss, VAELoss
+from torchrl_surprise.objectives import (
+    ICMLoss,
+    IntrinsicValueLoss,
+    TwoStreamAdvantage,
+    VAELoss,
+)
 from torchrl_surprise.transforms import (
     ICMTransform,
     IntrinsicRewardTransform,
@@ -20,8 +25,10 @@ __all__ = [
     "ICMModel",
     "ICMTransform",
     "IntrinsicRewardTransform",
+    "IntrinsicValueLoss",
     "LinearSchedule",
     "StateVAE",
+    "TwoStreamAdvantage",
     "VAELoss",
     "VAESurpriseTransform",
 ]

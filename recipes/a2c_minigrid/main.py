@@ -9,7 +9,8 @@ Every update, in this order:
    (the env's reward is kept as ``extrinsic_reward`` and is what is logged);
 3. GAE on the mixed reward, then one A2C step (TorchRL's A2CLoss);
    with ``intrinsic.intrinsic_critic=true`` a second value head learns the
-   intrinsic return instead and the advantage is ``A_ext + coef * A_int``;
+   intrinsic return instead and the advantage is ``A_ext + coef * A_int``
+   (:class:`torchrl_surprise.TwoStreamAdvantage`, :class:`IntrinsicValueLoss`);
 4. the bonus model (VAE, ICM or RND predictor) takes ``update_steps`` gradient
    steps on the states of D, which is then discarded (no replay).
 
@@ -89,7 +90,9 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
     use_int_critic = cfg.intrinsic.intrinsic_critic and bonus_transform is not None
     model, int_value = make_actor_critic(env.action_spec, use_int_critic)
     policy = model.get_policy_operator()
-    loss_module, gae, gae_int = make_a2c(cfg, model, int_value)
+    loss_module, advantage, int_value_loss = make_a2c(
+        cfg, model, int_value, bonus_transform
+    )
     params = list(model.parameters())
     if int_value is not None:
         shared = {id(p) for p in params}
@@ -102,13 +105,6 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         bonus_params = [p for p in bonus_loss.parameters() if p.requires_grad]
         # fused: the same Adam update in one kernel (~20% faster VAE steps on CPU)
         bonus_optim = torch.optim.Adam(bonus_params, lr=cfg.intrinsic.lr, fused=True)
-    if gae_int is not None:
-        int_reward_key = bonus_transform.normalized_reward_key or (
-            bonus_transform.intrinsic_reward_key
-        )
-        gae_int.set_keys(reward=int_reward_key)
-        if not cfg.intrinsic.episodic:
-            gae_int.set_keys(done="never_done", terminated="never_done")
 
     stats = EpisodeStats(window=cfg.logger.episode_window)
     progress = Progress(
@@ -167,24 +163,15 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         with torch.no_grad():
             if bonus_transform is not None:
                 data = bonus_transform(data)
-            # Step 3: advantages on the (mixed) reward.
-            data = gae(data)
-            if gae_int is not None:
-                if not cfg.intrinsic.episodic:
-                    data["next", "never_done"] = torch.zeros_like(data["next", "done"])
-                data = gae_int(data)
-                coef = bonus_transform.current_coef()
-                data["advantage"] = data["advantage"] + coef * data["advantage_int"]
+            # Step 3: advantages: GAE on the (mixed) reward, or the two streams
+            # (A_ext + coef * A_int, TwoStreamAdvantage).
+            data = advantage(data)
         loss_td = loss_module(data)
         loss = (
             loss_td["loss_objective"] + loss_td["loss_critic"] + loss_td["loss_entropy"]
         )
-        if int_value is not None:
-            value_int = int_value(data.select(*int_value.in_keys))["state_value_int"]
-            loss_int = (
-                cfg.loss.critic_coef
-                * (value_int - data["value_target_int"]).pow(2).mean()
-            )
+        if int_value_loss is not None:
+            loss_int = int_value_loss(data)["loss_critic_int"]
             loss = loss + loss_int
         optim.zero_grad()
         loss.backward()

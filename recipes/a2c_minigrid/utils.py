@@ -19,7 +19,9 @@ from torchrl_surprise import (
     ICMLoss,
     ICMModel,
     ICMTransform,
+    IntrinsicValueLoss,
     StateVAE,
+    TwoStreamAdvantage,
     VAELoss,
     VAESurpriseTransform,
 )
@@ -154,8 +156,11 @@ def make_actor_critic(action_spec, intrinsic_critic: bool):
     return model, intrinsic_value
 
 
-def make_a2c(cfg, model, intrinsic_value):
-    """TorchRL's A2CLoss and GAE(s) for the extrinsic (or mixed) and intrinsic returns."""
+def make_a2c(cfg, model, intrinsic_value, bonus_transform):
+    """TorchRL's A2CLoss and the advantage: GAE, or two streams with two critics.
+
+    Returns ``(loss, advantage, intrinsic_value_loss or None)``.
+    """
     loss = A2CLoss(
         actor_network=model.get_policy_operator(),
         critic_network=model.get_value_operator(),
@@ -163,26 +168,28 @@ def make_a2c(cfg, model, intrinsic_value):
         critic_coeff=cfg.loss.critic_coef,
         loss_critic_type="l2",
     )
-    gae = GAE(
-        gamma=cfg.loss.gamma,
-        lmbda=cfg.loss.gae_lambda,
-        value_network=model.get_value_operator(),
-        average_gae=False,
-    )
-    gae_int = None
-    if intrinsic_value is not None:
-        gae_int = GAE(
+    if intrinsic_value is None:
+        # One critic, on the env reward or on the transform's mixed reward.
+        advantage = GAE(
             gamma=cfg.loss.gamma,
             lmbda=cfg.loss.gae_lambda,
-            value_network=intrinsic_value,
+            value_network=model.get_value_operator(),
             average_gae=False,
         )
-        gae_int.set_keys(
-            advantage="advantage_int",
-            value_target="value_target_int",
-            value="state_value_int",
-        )
-    return loss, gae, gae_int
+        return loss, advantage, None
+    advantage = TwoStreamAdvantage(
+        model.get_value_operator(),
+        intrinsic_value,
+        intrinsic_reward_key=bonus_transform.normalized_reward_key
+        or bonus_transform.intrinsic_reward_key,
+        # The transform's coefficient and schedule: coef means one thing.
+        coef=bonus_transform.current_coef,
+        gamma=cfg.loss.gamma,
+        lmbda=cfg.loss.gae_lambda,
+        episodic=cfg.intrinsic.episodic,
+    )
+    value_loss = IntrinsicValueLoss(intrinsic_value, critic_coef=cfg.loss.critic_coef)
+    return loss, advantage, value_loss
 
 
 def make_bonus(cfg, action_spec, bonus: str):
