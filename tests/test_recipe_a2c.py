@@ -56,6 +56,15 @@ def test_every_bonus_runs_end_to_end(tmp_path, bonus):
     assert ckpt["frames"] == 512
 
 
+@pytest.mark.parametrize("variant", ["neg_elbo", "info_gain", "lagged_kl"])
+def test_vae_variants_run_end_to_end(tmp_path, variant):
+    run_dir = tmp_path / variant
+    overrides = [f"intrinsic.vae.variant={variant}", "intrinsic.vae.lag_updates=2"]
+    run_recipe(run_dir, "bonus=vae", *overrides, "collector.total_frames=256")
+    _, raw = read_scalar_csv(run_dir / "logs/a2c/scalars/train/intrinsic_reward.csv")
+    assert torch.isfinite(torch.as_tensor(raw)).all() and (raw > 0).any()
+
+
 def test_same_seed_same_curve(tmp_path):
     args = ["bonus=vae", "collector.total_frames=384", "seed=3"]
     run_recipe(tmp_path / "a", *args)
@@ -190,6 +199,7 @@ def test_sweep_runs_each_job_once_and_a_rerun_starts_no_new_work(tmp_path, launc
         ("collector.total_frames=-5", "collector.total_frames must be a positive"),
         ("resume=true", "no checkpoint"),
         ("resume=maybe", "resume must be one of"),
+        ("intrinsic.vae.variant=novelty", "intrinsic.vae.variant must be one of"),
     ],
 )
 def test_bad_config_fails_clearly(tmp_path, override, message):

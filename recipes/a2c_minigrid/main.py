@@ -142,6 +142,24 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         print(f"Nothing to do: {frames} frames already done in {run_dir}.")
         collector.shutdown()
         return
+    variant = cfg.intrinsic.vae.variant if cfg.bonus == "vae" else None
+    bonus_after_update = variant == "info_gain"
+
+    def train_bonus_model(data):
+        """``update_steps`` gradient steps of the bonus model on the rollout."""
+        bonus_td = None
+        if bonus_loss is None:
+            return None
+        if env_side is not None:
+            bonus_loss.obs_rms = env_side.obs_rms
+        for _ in range(cfg.intrinsic.update_steps):
+            bonus_td = bonus_loss(data)
+            bonus_total = sum(v for k, v in bonus_td.items() if k.startswith("loss_"))
+            bonus_optim.zero_grad()
+            bonus_total.backward()
+            bonus_optim.step()
+        return bonus_td
+
     stop = StopSignal()
 
     # ---- training loop ----------------------------------------------------------
@@ -159,6 +177,10 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         iteration = frames // data.numel() - 1
         stats.update(data)
 
+        if bonus_after_update:
+            # The information gain of this rollout's VAE update on each state.
+            bonus_transform.snapshot()
+            bonus_td = train_bonus_model(data)
         # Step 2: the bonus of the whole rollout, with the VAE as it was during it.
         with torch.no_grad():
             if bonus_transform is not None:
@@ -179,18 +201,10 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         optim.step()
 
         # Step 4: train the bonus model on the states of this rollout.
-        bonus_td = None
-        if bonus_loss is not None:
-            if env_side is not None:
-                bonus_loss.obs_rms = env_side.obs_rms
-            for _ in range(cfg.intrinsic.update_steps):
-                bonus_td = bonus_loss(data)
-                bonus_total = sum(
-                    v for k, v in bonus_td.items() if k.startswith("loss_")
-                )
-                bonus_optim.zero_grad()
-                bonus_total.backward()
-                bonus_optim.step()
+        if not bonus_after_update:
+            bonus_td = train_bonus_model(data)
+        if variant == "lagged_kl" and iteration % cfg.intrinsic.vae.lag_updates == 0:
+            bonus_transform.snapshot()
 
         pbar.update(data.numel())
         fps = (frames - start_frames) / (time.perf_counter() - start)

@@ -34,6 +34,8 @@ from torchrl_surprise.experiments import RESUME_MODES, ResumableCollector
 from torchrl_surprise.transforms import (
     NORMALIZATIONS,
     PrecomputedBonusTransform,
+    VAENegativeELBOTransform,
+    VAEPosteriorShiftTransform,
     make_coef_schedule,
 )
 from torchrl_surprise.transforms.stochasticity import (
@@ -43,6 +45,7 @@ from torchrl_surprise.transforms.stochasticity import (
 
 __all__ = [
     "BONUSES",
+    "VAE_VARIANTS",
     "MiniGridConvTrunk",
     "check_config",
     "init_rl_starter",
@@ -54,11 +57,29 @@ __all__ = [
 ]
 
 BONUSES = ("none", "vae", "icm", "rnd")
+
+VAE_VARIANTS = {
+    # the paper's bonus: KL(q(z|s) || N(0, I))
+    "kl": VAESurpriseTransform,
+    # novelty: -ELBO, how badly the VAE explains the state
+    "neg_elbo": VAENegativeELBOTransform,
+    # KL(q(z|s) || q_ref(z|s)): with the reference taken right before the VAE
+    # trains on the rollout (info_gain) or every few updates (lagged_kl)
+    "info_gain": VAEPosteriorShiftTransform,
+    "lagged_kl": VAEPosteriorShiftTransform,
+}
+"""``intrinsic.vae.variant`` -> the transform that computes the VAE bonus."""
 RND_KEY = "rnd_reward"
 
 
 def check_config(cfg) -> None:
     """Fails early, naming the value, on a config the recipe cannot run."""
+    variant = cfg.intrinsic.vae.get("variant", "kl")
+    if variant not in VAE_VARIANTS:
+        raise ValueError(
+            f"intrinsic.vae.variant must be one of {tuple(VAE_VARIANTS)}, got "
+            f"{variant!r}."
+        )
     if cfg.bonus not in BONUSES:
         raise ValueError(f"bonus must be one of {BONUSES}, got {cfg.bonus!r}.")
     if cfg.intrinsic.normalization not in NORMALIZATIONS:
@@ -196,7 +217,7 @@ def make_bonus(cfg, action_spec, bonus: str):
             hidden_dim=icfg.vae.hidden_dim,
             use_direction=icfg.vae.use_direction,
         )
-        transform = VAESurpriseTransform(vae, **common)
+        transform = VAE_VARIANTS[icfg.vae.get("variant", "kl")](vae, **common)
         loss = VAELoss(vae, kl_weight=icfg.vae.kl_weight)
     elif bonus == "icm":
         icm = ICMModel.for_minigrid(

@@ -13,7 +13,11 @@ from torchrl_surprise.transforms.stochasticity import (
     STOCHASTICITY_LEVELS,
     StochasticityTransform,
 )
-from torchrl_surprise.transforms.vae_surprise import VAESurpriseTransform
+from torchrl_surprise.transforms.vae_surprise import (
+    VAENegativeELBOTransform,
+    VAEPosteriorShiftTransform,
+    VAESurpriseTransform,
+)
 
 __all__ = [
     "ICMTransform",
@@ -23,6 +27,8 @@ __all__ = [
     "PrecomputedBonusTransform",
     "STOCHASTICITY_LEVELS",
     "StochasticityTransform",
+    "VAENegativeELBOTransform",
+    "VAEPosteriorShiftTransform",
     "VAESurpriseTransform",
     "WorkerCopyWarning",
     "make_coef_schedule",
