@@ -65,6 +65,36 @@ def test_vae_variants_run_end_to_end(tmp_path, variant):
     assert torch.isfinite(torch.as_tensor(raw)).all() and (raw > 0).any()
 
 
+def test_transfer_starts_the_bonus_model_from_another_run(tmp_path):
+    source = tmp_path / "source"
+    run_recipe(source, "bonus=vae", "collector.total_frames=128")
+    frozen = tmp_path / "frozen"
+    out = run_recipe(
+        frozen,
+        "bonus=vae",
+        "env.name=MiniGrid-DoorKey-5x5-v0",
+        f"intrinsic.init_from={source}",
+        "intrinsic.finetune=false",
+        "collector.total_frames=128",
+    ).stdout
+    assert "Bonus model from" in out
+
+    def vae_weights(run):
+        state = load_checkpoint(run / "checkpoint.pt")["bonus_transform"]
+        return {k: v for k, v in state.items() if k.startswith("vae.")}
+
+    src, dst = vae_weights(source), vae_weights(frozen)
+    assert src.keys() == dst.keys() and all(torch.equal(src[k], dst[k]) for k in src)
+    proc = run_recipe(
+        tmp_path / "bad",
+        "bonus=icm",
+        f"intrinsic.init_from={source}",
+        "collector.total_frames=128",
+        check=False,
+    )
+    assert proc.returncode != 0 and "bonus='vae'" in proc.stderr
+
+
 def test_same_seed_same_curve(tmp_path):
     args = ["bonus=vae", "collector.total_frames=384", "seed=3"]
     run_recipe(tmp_path / "a", *args)

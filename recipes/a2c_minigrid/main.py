@@ -50,28 +50,22 @@ from torchrl_surprise.experiments import (
     Progress,
     RNGState,
     StopSignal,
-    evaluate_episodes,
     get_run_logger,
     plot_scalar_logs,
     prepare_run,
     resume_command,
+)
+from torchrl_surprise.experiments.minigrid import (
+    EVAL_SEED_OFFSET,
+    evaluate,
+    load_bonus_model,
+    rollout_metrics,
 )
 
 # Sweep launchers pickle this script's task function for their worker processes,
 # where the module beside the script is not importable (submitit, Ray): it travels
 # by value instead.
 cloudpickle.register_pickle_by_value(utils)
-
-EVAL_SEED_OFFSET = 10_000
-
-
-def evaluate(env, policy, episodes: int, deterministic: bool) -> tuple[float, float]:
-    """Mean extrinsic return and success rate over ``episodes`` finished episodes."""
-    returns = evaluate_episodes(
-        env, policy, episodes, seed=env.eval_seed, deterministic=deterministic
-    )
-    mean = sum(returns) / max(len(returns), 1)
-    return mean, sum(r > 0 for r in returns) / max(len(returns), 1)
 
 
 @hydra.main(config_path=".", config_name="config", version_base=None)
@@ -85,8 +79,15 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
     bonus_transform, bonus_loss, env_side = make_bonus(cfg, env.action_spec, cfg.bonus)
     if env_side is not None:
         env.append_transform(env_side)
-    eval_env = make_env(cfg, cfg.eval.num_envs, seed=cfg.seed + EVAL_SEED_OFFSET)
-    eval_env.eval_seed = cfg.seed + EVAL_SEED_OFFSET
+    if cfg.intrinsic.init_from and not ckpt:
+        # Transfer: the bonus model starts from another run's (a resumed run
+        # restores its own from the checkpoint below).
+        source_frames = load_bonus_model(
+            bonus_transform, cfg.bonus, cfg.intrinsic.init_from
+        )
+        print(f"Bonus model from {cfg.intrinsic.init_from} ({source_frames} frames).")
+    eval_seed = cfg.seed + EVAL_SEED_OFFSET
+    eval_env = make_env(cfg, cfg.eval.num_envs, seed=eval_seed)
     use_int_critic = cfg.intrinsic.intrinsic_critic and bonus_transform is not None
     model, int_value = make_actor_critic(env.action_spec, use_int_critic)
     policy = model.get_policy_operator()
@@ -148,7 +149,7 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
     def train_bonus_model(data):
         """``update_steps`` gradient steps of the bonus model on the rollout."""
         bonus_td = None
-        if bonus_loss is None:
+        if bonus_loss is None or not cfg.intrinsic.finetune:
             return None
         if env_side is not None:
             bonus_loss.obs_rms = env_side.obs_rms
@@ -210,11 +211,7 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         fps = (frames - start_frames) / (time.perf_counter() - start)
         if iteration % cfg.logger.log_interval == 0:
             metrics = {
-                "train/episode_return": stats.mean_return,
-                "train/success_rate": stats.success_rate,
-                "train/episode_length": stats.mean_length,
-                "train/episodes": stats.episodes,
-                "train/reward": data["next", "reward"].mean().item(),
+                **rollout_metrics(stats, data, bonus_transform, bonus_td),
                 "train/loss_objective": loss_td["loss_objective"].item(),
                 "train/loss_critic": loss_td["loss_critic"].item(),
                 "train/loss_entropy": loss_td["loss_entropy"].item(),
@@ -222,19 +219,6 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
                 "train/grad_norm": grad_norm.item(),
                 "time/fps": fps,
             }
-            if bonus_transform is not None:
-                next_td = data["next"]
-                metrics["train/intrinsic_reward"] = (
-                    next_td[bonus_transform.intrinsic_reward_key].mean().item()
-                )
-                if bonus_transform.normalized_reward_key is not None:
-                    metrics["train/intrinsic_reward_normalized"] = (
-                        next_td[bonus_transform.normalized_reward_key].mean().item()
-                    )
-                metrics["train/intrinsic_coef"] = bonus_transform.current_coef()
-            if bonus_td is not None:
-                for key, value in bonus_td.items():
-                    metrics[f"bonus/{key}"] = value.mean().item()
             if int_value is not None:
                 metrics["train/loss_critic_int"] = loss_int.item()
             if logger is not None:
@@ -247,7 +231,11 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
             progress.next_eval += cfg.eval.interval_frames
             model.eval()
             ret, success = evaluate(
-                eval_env, policy, cfg.eval.episodes, cfg.eval.deterministic
+                eval_env,
+                policy,
+                cfg.eval.episodes,
+                seed=eval_seed,
+                deterministic=cfg.eval.deterministic,
             )
             model.train()
             if logger is not None:

@@ -1,5 +1,7 @@
 """Builders shared by the MiniGrid recipes (A2C, PPO): config checks, envs, the
-rl-starter-files actor-critic, the bonus and its advantage, the collector.
+rl-starter-files actor-critic, the bonus and its advantage, the collector, and the
+pieces of the training loop both recipes run alike (the bonus model's update, the
+rollout metrics, the evaluation).
 
 Run support, not library core: it imports minigrid (through the env factory) and is
 imported by the recipes only.
@@ -8,6 +10,8 @@ imported by the recipes only.
 from __future__ import annotations
 
 import math
+import os
+from pathlib import Path
 
 import torch
 from tensordict.nn import TensorDictModule, TensorDictSequential
@@ -30,7 +34,11 @@ from torchrl_surprise import (
     VAESurpriseTransform,
 )
 from torchrl_surprise.envs import make_minigrid_env
-from torchrl_surprise.experiments import RESUME_MODES, ResumableCollector
+from torchrl_surprise.experiments import (
+    RESUME_MODES,
+    ResumableCollector,
+    evaluate_episodes,
+)
 from torchrl_surprise.transforms import (
     NORMALIZATIONS,
     PrecomputedBonusTransform,
@@ -47,13 +55,18 @@ __all__ = [
     "BONUSES",
     "VAE_VARIANTS",
     "MiniGridConvTrunk",
+    "EVAL_SEED_OFFSET",
     "check_config",
+    "evaluate",
     "init_rl_starter",
+    "load_bonus_model",
     "make_actor_critic",
     "make_advantage",
     "make_bonus",
     "make_collector",
     "make_env",
+    "rollout_metrics",
+    "train_bonus_model",
 ]
 
 BONUSES = ("none", "vae", "icm", "rnd")
@@ -167,8 +180,14 @@ def init_rl_starter(module: nn.Module) -> None:
         module.bias.data.fill_(0)
 
 
-def make_actor_critic(action_spec, intrinsic_critic: bool):
-    """Shared conv trunk, a categorical policy head and one (or two) value heads."""
+def make_actor_critic(
+    action_spec, intrinsic_critic: bool, return_log_prob: bool = False
+):
+    """Shared conv trunk, a categorical policy head and one (or two) value heads.
+
+    ``return_log_prob=True`` makes the policy write ``"action_log_prob"`` as it
+    acts (PPO's ratio needs the log-probability under the collecting policy).
+    """
     num_actions = action_spec.space.n
     trunk = TensorDictModule(
         MiniGridConvTrunk(), in_keys=["image"], out_keys=["hidden"]
@@ -180,7 +199,7 @@ def make_actor_critic(action_spec, intrinsic_critic: bool):
         in_keys=["logits"],
         distribution_class=Categorical,
         spec=action_spec,
-        return_log_prob=False,
+        return_log_prob=return_log_prob,
     )
     value_head = ValueOperator(_mlp_head(1), in_keys=["hidden"])
     model = ActorValueOperator(trunk, policy_head, value_head)
@@ -295,3 +314,119 @@ def make_collector(env, policy, cfg, total_frames: int):
         total_frames=total_frames,
         auto_register_policy_transforms=False,
     )
+
+
+EVAL_SEED_OFFSET = 10_000
+"""The evaluation envs are seeded ``seed + EVAL_SEED_OFFSET``: other episodes."""
+
+
+def train_bonus_model(bonus_loss, optim, data, steps: int):
+    """``steps`` gradient steps of the bonus model on the states of ``data``.
+
+    Each step minimises the sum of the ``loss_*`` entries of ``bonus_loss(data)``.
+
+    Returns:
+        The loss TensorDict of the last step (``None`` when ``steps`` is 0).
+    """
+    bonus_td = None
+    for _ in range(steps):
+        bonus_td = bonus_loss(data)
+        bonus_total = sum(v for k, v in bonus_td.items() if k.startswith("loss_"))
+        optim.zero_grad()
+        bonus_total.backward()
+        optim.step()
+    return bonus_td
+
+
+def rollout_metrics(stats, data, bonus_transform=None, bonus_td=None) -> dict:
+    """What both recipes log about a collected batch, by metric name.
+
+    The episode statistics (extrinsic return, success rate, length, episode count),
+    the mean reward of the batch, and with a bonus its raw and normalised mean, the
+    current coefficient and the bonus model's losses (``bonus/*``).
+    """
+    metrics = {
+        "train/episode_return": stats.mean_return,
+        "train/success_rate": stats.success_rate,
+        "train/episode_length": stats.mean_length,
+        "train/episodes": stats.episodes,
+        "train/reward": data["next", "reward"].mean().item(),
+    }
+    if bonus_transform is not None:
+        next_td = data["next"]
+        metrics["train/intrinsic_reward"] = (
+            next_td[bonus_transform.intrinsic_reward_key].mean().item()
+        )
+        if bonus_transform.normalized_reward_key is not None:
+            metrics["train/intrinsic_reward_normalized"] = (
+                next_td[bonus_transform.normalized_reward_key].mean().item()
+            )
+        metrics["train/intrinsic_coef"] = bonus_transform.current_coef()
+    if bonus_td is not None:
+        for key, value in bonus_td.items():
+            metrics[f"bonus/{key}"] = value.mean().item()
+    return metrics
+
+
+def evaluate(
+    env, policy, episodes: int, *, seed: int, deterministic: bool
+) -> tuple[float, float]:
+    """Mean extrinsic return and success rate over ``episodes`` finished episodes.
+
+    ``env`` is reseeded with ``seed`` first, so every evaluation sees the same
+    episodes (:func:`~torchrl_surprise.experiments.evaluate_episodes`).
+    """
+    returns = evaluate_episodes(
+        env, policy, episodes, seed=seed, deterministic=deterministic
+    )
+    mean = sum(returns) / max(len(returns), 1)
+    return mean, sum(r > 0 for r in returns) / max(len(returns), 1)
+
+
+# The attribute of each bonus transform that holds its model.
+_BONUS_MODELS = {"vae": "vae", "icm": "icm"}
+
+
+def load_bonus_model(transform, bonus: str, source: str | os.PathLike) -> int:
+    """Starts a bonus model from another run's (transfer), without its statistics.
+
+    Args:
+        transform: the bonus transform of this run.
+        bonus (str): ``"vae"`` or ``"icm"``.
+        source: a run directory or its ``checkpoint.pt``.
+
+    Returns:
+        The number of frames the source run had trained for.
+    """
+    from torchrl_surprise.experiments.run import load_checkpoint
+
+    path = Path(source)
+    path = path / "checkpoint.pt" if path.is_dir() else path
+    if bonus not in _BONUS_MODELS:
+        raise ValueError(
+            f"intrinsic.init_from supports bonus vae or icm, not {bonus!r}."
+        )
+    if not path.exists():
+        raise FileNotFoundError(f"intrinsic.init_from: no checkpoint at {path}.")
+    ckpt = load_checkpoint(path)
+    source_bonus = ckpt.get("config", {}).get("bonus")
+    if source_bonus != bonus:
+        raise ValueError(
+            f"intrinsic.init_from: {path} was trained with bonus={source_bonus!r}, "
+            f"this run has bonus={bonus!r}."
+        )
+    prefix = _BONUS_MODELS[bonus] + "."
+    weights = {
+        k[len(prefix) :]: v
+        for k, v in ckpt["bonus_transform"].items()
+        if k.startswith(prefix)
+    }
+    model = getattr(transform, _BONUS_MODELS[bonus])
+    try:
+        model.load_state_dict(weights)
+    except RuntimeError as err:
+        raise ValueError(
+            f"intrinsic.init_from: the model in {path} does not fit this run's "
+            f"(sizes in intrinsic.{bonus}.* must match the source run's): {err}"
+        ) from err
+    return int(ckpt.get("frames", 0))

@@ -158,6 +158,10 @@ def config_differences(
 ) -> list[str]:
     """The settings that differ between two configs, outside ``allowed``.
 
+    A setting absent from ``saved`` is one that a newer version of the recipe
+    added after the checkpoint was written; its default is meant to keep the old
+    behaviour, so it is not counted (a setting that was removed is).
+
     Args:
         saved: the config a checkpoint was written under (nested mapping).
         current: the config of the run that would resume it.
@@ -170,14 +174,15 @@ def config_differences(
         >>> config_differences({"env": {"name": "A"}, "logger": {"backend": "csv"}},
         ...                    {"env": {"name": "B"}, "logger": {"backend": ""}})
         ["env.name: 'A' -> 'B'"]
+        >>> config_differences({"a": 1}, {"a": 1, "new": 2})
+        []
     """
     old, new = _flatten(saved), _flatten(current)
     diffs = []
-    for name in sorted(set(old) | set(new)):
+    for name in sorted(old):
         if any(name == a or name.startswith(a + ".") for a in allowed):
             continue
-        missing = "<absent>"
-        before, after = old.get(name, missing), new.get(name, missing)
+        before, after = old[name], new.get(name, "<absent>")
         if before != after:
             diffs.append(f"{name}: {before!r} -> {after!r}")
     return diffs
