@@ -114,6 +114,7 @@ __all__ = [
     "plot_curves",
     "plot_profiles",
     "read_oracle",
+    "report_table",
     "runs_metadata",
     "setting_label",
     "summarize",
@@ -925,6 +926,55 @@ def _read_meta_csv(path: Path) -> pd.DataFrame:
     )
 
 
+def _interval(row: pd.Series, name: str) -> str:
+    iqm = row.get(f"{name}_iqm")
+    if iqm is None or pd.isna(iqm):
+        return ""
+    return f"{iqm:.2f} [{row[f'{name}_ci_low']:.2f}, {row[f'{name}_ci_high']:.2f}]"
+
+
+def _frames_to(row: pd.Series, fraction: float) -> str:
+    median = row.get(f"median_frames_to_{fraction}")
+    if median is None or (not isinstance(median, str) and pd.isna(median)):
+        return ""
+    reached = int(row[f"seeds_reaching_{fraction}"])
+    try:
+        median = f"{float(median) / 1000:.0f}k"
+    except ValueError:
+        pass  # "not reached"
+    return f"{median} ({reached}/{int(row['seeds'])})"
+
+
+def report_table(summary: pd.DataFrame) -> pd.DataFrame:
+    """The summary in the columns a report shows: IQM [95% CI] and frames to
+    thresholds (median over seeds, with how many seeds reached it).
+
+    Examples:
+        >>> row = {"task": "T", "setting": "s", "seeds": 4, "budget": 1000,
+        ...        "normalized": True, "train_return_iqm": 0.5,
+        ...        "train_return_ci_low": 0.4, "train_return_ci_high": 0.6,
+        ...        "median_frames_to_0.5": 800.0, "seeds_reaching_0.5": 3}
+        >>> report_table(pd.DataFrame([row])).iloc[0]["return / oracle"]
+        '0.50 [0.40, 0.60]'
+    """
+    rows = []
+    for _, row in summary.iterrows():
+        ret = "return / oracle" if row.get("normalized", False) else "return"
+        out = {
+            "task": row["task"].removeprefix("MiniGrid-"),
+            "setting": row["setting"],
+            "seeds": int(row["seeds"]),
+            "frames": f"{int(row['budget']) / 1000:.0f}k",
+            ret: _interval(row, "train_return"),
+            "success": _interval(row, "train_success"),
+            "eval return": _interval(row, "eval_return"),
+        }
+        for fraction in FRACTIONS:
+            out[f"frames to {fraction}"] = _frames_to(row, fraction)
+        rows.append(out)
+    return pd.DataFrame(rows)
+
+
 def aggregate(
     data: pd.DataFrame,
     out: str | os.PathLike,
@@ -937,7 +987,8 @@ def aggregate(
 ) -> dict[str, Path]:
     """Writes every table and figure computed from the per-run data into ``out``.
 
-    ``summary.csv``, ``frames_to_threshold.csv``, ``probability_of_improvement.csv``,
+    ``summary.csv``, ``report.csv`` (its short form, for reports),
+    ``frames_to_threshold.csv``, ``probability_of_improvement.csv``,
     ``curves.png`` and ``performance_profiles.png`` (see the module description).
 
     Returns:
@@ -953,6 +1004,7 @@ def aggregate(
             data, oracle, budget, reps, seed
         ),
     }
+    tables["report.csv"] = report_table(tables["summary.csv"])
     paths = {}
     for name, table in tables.items():
         paths[name] = out / name
