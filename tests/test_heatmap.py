@@ -1,0 +1,245 @@
+"""The surprise heatmap (torchrl_surprise.experiments.heatmap) on one real layout.
+
+MiniGrid-MultiRoom-N3-S4-v0, layout seed 0, with a small VAE built in-process;
+the CLI reads a checkpoint the test writes in the recipe's format.
+"""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+import torch
+from tensordict import TensorDict
+
+from torchrl_surprise import StateVAE, VAESurpriseTransform
+from torchrl_surprise.experiments.heatmap import (
+    CATEGORIES,
+    bonus_grid,
+    category_means,
+    cell_categories,
+    door_views,
+    load_bonus_transform,
+    main,
+    make_layout_env,
+    reachable_cells,
+    render_layout,
+)
+from torchrl_surprise.transforms import VAEPosteriorShiftTransform
+
+ENV = "MiniGrid-MultiRoom-N3-S4-v0"
+VAE_CONFIG = {"latent_dim": 4, "hidden_dim": 16, "use_direction": True}
+
+
+@pytest.fixture
+def env():
+    env = make_layout_env(ENV, layout_seed=0)
+    yield env
+    env.close()
+
+
+def small_transform(cls=VAESurpriseTransform, **kwargs):
+    return cls(StateVAE.for_minigrid(**VAE_CONFIG), **kwargs)
+
+
+def agent_state(env):
+    base = env.unwrapped
+    doors = [
+        (obj.is_open, obj.is_locked)
+        for obj in base.grid.grid
+        if obj is not None and obj.type == "door"
+    ]
+    return tuple(base.agent_pos), base.agent_dir, base.step_count, doors
+
+
+@pytest.mark.parametrize("open_doors", [False, True])
+def test_nan_exactly_where_the_agent_cannot_be(env, open_doors):
+    grid = bonus_grid(small_transform(), env, open_doors=open_doors)
+    base = env.unwrapped
+    assert grid.shape == (base.grid.height, base.grid.width, 4)
+    finite = np.isfinite(grid)
+    # a cell is all finite or all NaN (4 directions)
+    assert (finite.all(-1) == finite.any(-1)).all()
+    reachable = reachable_cells(env, open_doors=open_doors)
+    assert (finite.all(-1) == reachable).all()
+    for y, x in np.argwhere(reachable):
+        cell = base.grid.get(int(x), int(y))
+        # (the doors are closed again once bonus_grid has returned)
+        assert (
+            cell is None or cell.can_overlap() or (open_doors and cell.type == "door")
+        )
+    for y in range(base.grid.height):
+        for x in range(base.grid.width):
+            cell = base.grid.get(x, y)
+            if cell is not None and cell.type == "wall":
+                assert not finite[y, x].any()
+    x0, y0 = base.agent_pos
+    assert finite[y0, x0].all()
+    doors = [
+        (x, y)
+        for y in range(base.grid.height)
+        for x in range(base.grid.width)
+        if getattr(base.grid.get(x, y), "type", None) == "door"
+    ]
+    # closed doors cannot be stood on and wall the other rooms off
+    assert all(finite[y, x].all() == open_doors for x, y in doors)
+    closed = reachable_cells(env, open_doors=False)
+    opened = reachable_cells(env, open_doors=True)
+    assert (closed <= opened).all() and closed.sum() < opened.sum()
+    assert any(
+        getattr(base.grid.get(int(x), int(y)), "type", None) == "goal"
+        for y, x in np.argwhere(opened)
+    )
+
+
+def test_bonus_equals_the_bonus_of_the_placed_agent(env):
+    transform = small_transform()
+    grid = bonus_grid(transform, env, open_doors=True)
+    # a fresh env of the same layout, the agent really put on a door cell
+    fresh = make_layout_env(ENV, layout_seed=0)
+    base = fresh.unwrapped
+    x, y = next(
+        (x, y)
+        for y in range(base.grid.height)
+        for x in range(base.grid.width)
+        if getattr(base.grid.get(x, y), "type", None) == "door"
+    )
+    for obj in base.grid.grid:  # as bonus_grid(open_doors=True) sees the layout
+        if obj is not None and obj.type == "door":
+            obj.is_open = True
+    values = []
+    for direction in range(4):
+        base.agent_pos, base.agent_dir = (x, y), direction
+        obs = base.gen_obs()
+        td = TensorDict(
+            {
+                "next": {
+                    "image": torch.as_tensor(obs["image"]).unsqueeze(0),
+                    "direction": torch.tensor([obs["direction"]]),
+                    "reward": torch.zeros(1, 1),
+                }
+            },
+            batch_size=[1],
+        )
+        values.append(transform(td)["next", "intrinsic_reward"].item())
+    np.testing.assert_allclose(grid[y, x], values, rtol=1e-5, atol=1e-6)
+    # the four directions see different things: the test checks something
+    assert len(set(np.round(values, 6))) > 1
+    fresh.close()
+
+
+def test_leaves_env_and_transform_as_they_were(env):
+    transform = small_transform(normalization="reward_std")
+    before_env = agent_state(env)
+    before_stats = {
+        k: v.clone() for k, v in transform.state_dict().items() if torch.is_tensor(v)
+    }
+    for open_doors in (False, True):
+        bonus_grid(transform, env, open_doors=open_doors)
+        cell_categories(env, open_doors=open_doors)
+        render_layout(env, open_doors=open_doors, tile_size=8)
+    assert agent_state(env) == before_env
+    assert not transform.frozen
+    after = transform.state_dict()
+    for key, value in before_stats.items():
+        assert torch.equal(after[key], value), key
+
+
+def test_categories_partition_the_reachable_cells(env):
+    cats = cell_categories(env, open_doors=True)
+    assert tuple(cats) == CATEGORIES
+    reachable = reachable_cells(env, open_doors=True)
+    for name in ("doorway", "near_goal", "door_in_view"):
+        assert cats[name].any(), name
+    stacked = np.stack(list(cats.values()))
+    assert (stacked.sum(0) == reachable).all()  # disjoint, and cover them
+    base = env.unwrapped
+
+    def kinds_around(x, y):
+        return {
+            getattr(base.grid.get(x + dx, y + dy), "type", None)
+            for dx, dy in ((0, 0), (1, 0), (-1, 0), (0, 1), (0, -1))
+        }
+
+    for y, x in np.argwhere(cats["doorway"]):
+        assert "door" in kinds_around(int(x), int(y))
+    for y, x in np.argwhere(cats["near_goal"]):
+        assert "goal" in kinds_around(int(x), int(y))
+    views = door_views(env, open_doors=True)
+    assert views[cats["door_in_view"]].any(-1).all()
+    assert not views[cats["other"]].any()
+    assert not views[~reachable].any()
+    means = category_means(bonus_grid(small_transform(), env, open_doors=True), cats)
+    assert means["doorway"]["count"] == cats["doorway"].sum()
+    assert np.isfinite(means["doorway"]["mean_bonus"])
+
+
+def write_checkpoint(path, transform, *, bonus="vae", variant="kl", frames=1234):
+    config = {
+        "bonus": bonus,
+        "env": {"name": ENV},
+        "loss": {"gamma": 0.99},
+        "intrinsic": {
+            "normalization": transform.normalization,
+            "clip": None,
+            "vae": {**VAE_CONFIG, "variant": variant},
+        },
+    }
+    torch.save(
+        {"config": config, "frames": frames, "bonus_transform": transform.state_dict()},
+        path,
+    )
+
+
+def test_cli_writes_png_and_csv(tmp_path, env, capsys):
+    # A posterior-shift VAE whose reference differs: the reference must load too.
+    transform = small_transform(VAEPosteriorShiftTransform, normalization="return_std")
+    with torch.no_grad():
+        transform.vae.head.bias.add_(0.3)
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    write_checkpoint(run_dir / "checkpoint.pt", transform, variant="info_gain")
+    other = tmp_path / "later.pt"
+    write_checkpoint(other, transform, variant="info_gain", frames=5678)
+
+    loaded, config, frames = load_bonus_transform(run_dir)
+    assert type(loaded) is VAEPosteriorShiftTransform and frames == 1234
+    assert config["env"]["name"] == ENV
+    expected = bonus_grid(transform, env, open_doors=True)
+    np.testing.assert_allclose(
+        bonus_grid(loaded, env, open_doors=True), expected, rtol=1e-5, atol=1e-6
+    )
+    assert np.nanmax(expected) > 0
+
+    out = tmp_path / "maps" / "n3s4.png"
+    png = main(
+        [str(run_dir), "--checkpoint", str(other), "--layout-seed", "0"]
+        + ["--out", str(out), "--open-doors", "--directions"]
+    )
+    assert png == out and out.stat().st_size > 0
+    with open(out.with_suffix(".csv")) as f:
+        rows = list(csv.DictReader(f))
+    assert [r["frames"] for r in rows].count("1234") == len(rows) // 2
+    assert {r["category"] for r in rows} >= set(CATEGORIES)
+    doorway = next(r for r in rows if r["category"] == "doorway")
+    cats = cell_categories(env, open_doors=True)
+    assert float(doorway["mean_bonus"]) == pytest.approx(
+        float(np.mean(expected[cats["doorway"]])), rel=1e-5
+    )
+    printed = capsys.readouterr().out
+    assert "doorway" in printed and str(out) in printed
+
+
+def test_clear_errors(tmp_path):
+    empty = tmp_path / "empty_run"
+    empty.mkdir()
+    with pytest.raises(FileNotFoundError, match="empty_run"):
+        load_bonus_transform(empty)
+    icm_run = tmp_path / "icm_run"
+    icm_run.mkdir()
+    write_checkpoint(icm_run / "checkpoint.pt", small_transform(), bonus="icm")
+    with pytest.raises(ValueError, match="icm_run.*'icm', not 'vae'"):
+        load_bonus_transform(icm_run)
+    with pytest.raises(ValueError, match="icm_run"):
+        main([str(icm_run), "--out", str(tmp_path / "x.png")])
