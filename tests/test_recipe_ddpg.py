@@ -4,17 +4,20 @@ pieces in-process: the replay-buffer bonus equals the env-path bonus."""
 from __future__ import annotations
 
 import importlib.util
+import shlex
+import signal
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+import pandas as pd
 import pytest
 import torch
-from _recipe_run import kill_after_checkpoint
+from _recipe_run import differing_logs, kill_after_checkpoint, wait_for_checkpoint
 from hydra import compose, initialize_config_dir
-from tensordict import TensorDict
 
-from torchrl_surprise.experiments import load_checkpoint, read_scalar_csv
+from torchrl_surprise.experiments import aggregate, load_checkpoint, read_scalar_csv
 
 RECIPE = Path(__file__).resolve().parents[1] / "recipes" / "ddpg_mujoco"
 MAIN = RECIPE / "main.py"
@@ -31,10 +34,10 @@ TINY = [
     "intrinsic.batch_size=32",
     "intrinsic.update_every=2",
     "intrinsic.warmup_frames=0",
-    "eval.interval_frames=400",
+    "eval.interval_frames=1000",
     "eval.episodes=1",
     "eval.num_envs=1",
-    "checkpoint.interval_frames=200",
+    "checkpoint.interval_frames=400",
     "logger.log_interval=1",
 ]
 
@@ -57,116 +60,228 @@ def make_cfg(*overrides: str):
         return compose(config_name="config", overrides=list(overrides))
 
 
-def run_recipe(run_dir: Path, *overrides: str, check: bool = True):
-    cmd = [sys.executable, str(MAIN), f"hydra.run.dir={run_dir}", *TINY, *overrides]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
-    if check and proc.returncode != 0:
-        raise AssertionError(
-            f"recipe failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
-        )
+def recipe_cmd(run_dir: Path, *overrides: str) -> list[str]:
+    return [sys.executable, str(MAIN), f"hydra.run.dir={run_dir}", *TINY, *overrides]
+
+
+_started: list[subprocess.Popen] = []
+
+
+@pytest.fixture(autouse=True)
+def _no_run_left_behind():
+    # A test that fails while its runs are going on kills them.
+    yield
+    while _started:
+        proc = _started.pop()
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def start_recipe(run_dir: Path, *overrides: str) -> subprocess.Popen:
+    proc = subprocess.Popen(
+        recipe_cmd(run_dir, *overrides),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    _started.append(proc)
     return proc
+
+
+def finish(proc: subprocess.Popen, check: bool = True) -> subprocess.CompletedProcess:
+    """Waits for a started run (runs overlap: start-up is most of a tiny run)."""
+    out, err = proc.communicate(timeout=300)
+    if check and proc.returncode != 0:
+        raise AssertionError(f"recipe failed:\n{out[-3000:]}\n{err[-3000:]}")
+    return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
+
+
+def run_recipe(run_dir: Path, *overrides: str, check: bool = True):
+    return finish(start_recipe(run_dir, *overrides), check=check)
 
 
 def scalars(run_dir: Path) -> Path:
     return run_dir / "logs" / "ddpg" / "scalars"
 
 
-VAE_RUN = ["bonus=vae", "collector.total_frames=600", "seed=3"]
-
-
-@pytest.fixture(scope="module")
-def vae_run(tmp_path_factory):
-    run_dir = tmp_path_factory.mktemp("ddpg") / "vae"
-    proc = run_recipe(run_dir, *VAE_RUN)
-    return run_dir, proc
-
-
-def _check_run(run_dir: Path, proc, frames: int, bonus: str) -> None:
-    assert "Learning curve:" in proc.stdout
+def _check_finished_run(run_dir: Path, proc, frames: int, bonus: str) -> None:
+    assert f"Done: {frames} frames" in proc.stdout
     assert (run_dir / "learning_curve.png").stat().st_size > 0
     assert (run_dir / "config_resolved.yaml").exists()
-    steps, fps = read_scalar_csv(scalars(run_dir) / "time" / "fps.csv")
-    assert steps[-1] == frames and (fps > 0).all()
-    _, ups = read_scalar_csv(scalars(run_dir) / "time" / "updates_per_s.csv")
-    assert ups[-1] > 0
+    _, fps = read_scalar_csv(scalars(run_dir) / "time" / "fps.csv")
+    assert (fps > 0).all()
     for name in ("loss_value", "loss_actor"):
         _, loss = read_scalar_csv(scalars(run_dir) / "train" / f"{name}.csv")
-        assert torch.isfinite(torch.as_tensor(loss)).all()
-    _, ret = read_scalar_csv(scalars(run_dir) / "eval" / "episode_return.csv")
-    assert torch.isfinite(torch.as_tensor(ret)).all()
+        assert np.isfinite(loss).all()
+    steps, ret = read_scalar_csv(scalars(run_dir) / "eval" / "episode_return.csv")
+    assert steps[-1] == frames and np.isfinite(ret).all()
     if bonus == "vae":
         for name in ("intrinsic_reward", "intrinsic_reward_normalized"):
             _, raw = read_scalar_csv(scalars(run_dir) / "train" / f"{name}.csv")
-            assert torch.isfinite(torch.as_tensor(raw)).all()
+            assert np.isfinite(raw).all()
         bonus_logs = {p.stem for p in (scalars(run_dir) / "bonus").iterdir()}
         assert {"loss_reconstruction", "loss_kl"} <= bonus_logs
     ckpt = load_checkpoint(run_dir / "checkpoint.pt")
     assert ckpt["frames"] == frames
-    # No frame lost or stored twice: the buffer holds every collected transition.
-    assert ckpt["replay_buffer"]["size"] == frames
-
-
-def test_vae_runs_end_to_end_on_halfcheetah(vae_run):
-    _check_run(*vae_run, frames=600, bonus="vae")
 
 
 @pytest.mark.parametrize(
-    "env_name, bonus, extra",
+    "bonus, overrides",
     [
-        ("HalfCheetah-v5", "none", []),
-        ("Hopper-v5", "vae", ["intrinsic.bonus_at=collection"]),
+        ("vae", []),  # HalfCheetah, the bonus recomputed on every replay sample
+        # Hopper's episodes end (resets mid-batch), OU noise carries per-env state.
+        ("none", ["env.name=Hopper-v5", "exploration.noise=ou"]),
     ],
+    ids=["vae-sample-halfcheetah", "none-ou-hopper"],
 )
-def test_recipe_runs_end_to_end(tmp_path, env_name, bonus, extra):
-    run_dir = tmp_path / bonus
-    args = [f"env.name={env_name}", f"bonus={bonus}", "collector.total_frames=600"]
-    proc = run_recipe(run_dir, *args, *extra)
-    _check_run(run_dir, proc, frames=600, bonus=bonus)
-    if env_name == "Hopper-v5":  # random Hopper episodes end within 600 frames
-        _, ret = read_scalar_csv(scalars(run_dir) / "train" / "episode_return.csv")
-        assert torch.isfinite(torch.as_tensor(ret[-1]))
+def test_killed_and_resumed_run_logs_what_the_uninterrupted_run_logs(
+    tmp_path, bonus, overrides
+):
+    run = [
+        f"bonus={bonus}",
+        *overrides,
+        "collector.total_frames=2000",
+        # A small buffer wraps after the kill: its write cursor must be restored.
+        "replay_buffer.size=1000",
+        # Checkpoints (every 2 batches) fall between log lines (batches 1, 3, ...):
+        # the per-update scalars not yet logged must be restored.
+        "logger.log_interval=2",
+    ]
+    whole = start_recipe(tmp_path / "whole", *run)
+    killed_dir = tmp_path / "killed"
+    killed = kill_after_checkpoint(
+        recipe_cmd(killed_dir, *run), killed_dir / "checkpoint.pt", min_frames=400
+    )
+    assert 400 <= killed["frames"] < 2000, "the kill must land mid-run"
+    _check_finished_run(tmp_path / "whole", finish(whole), 2000, bonus)
+    # resume=auto (the default) continues from the checkpoint.
+    resumed = run_recipe(killed_dir, *run)
+    assert "Done: 2000 frames" in resumed.stdout
+    # Every scalar file but time/*, byte for byte: same values, each step once.
+    assert differing_logs(tmp_path / "whole", killed_dir) == []
+    ckpt = load_checkpoint(killed_dir / "checkpoint.pt")
+    # Updates start with the batch that reaches init_random_frames (the first).
+    assert ckpt["progress"]["updates"] == 2000 // FRAMES_PER_BATCH * 20
 
 
-def test_same_seed_same_losses(tmp_path, vae_run):
-    run_recipe(tmp_path / "b", *VAE_RUN)
-    run_recipe(tmp_path / "c", *VAE_RUN[:-1], "seed=4")
-    losses = {}
-    for name, run_dir in (
-        ("a", vae_run[0]),
-        ("b", tmp_path / "b"),
-        ("c", tmp_path / "c"),
-    ):
-        path = scalars(run_dir) / "train" / "loss_value.csv"
-        losses[name] = read_scalar_csv(path)[1]
-    assert (losses["a"] == losses["b"]).all()
-    assert not (losses["a"] == losses["c"]).all()
+def test_sigint_and_sigterm_save_a_checkpoint_and_exit_cleanly(tmp_path):
+    signals = (signal.SIGINT, signal.SIGTERM)
+    procs = [
+        start_recipe(tmp_path / sig.name, "bonus=vae", "collector.total_frames=1000000")
+        for sig in signals
+    ]
+    for sig, proc in zip(signals, procs):
+        run_dir = tmp_path / sig.name
+        wait_for_checkpoint(run_dir / "checkpoint.pt", min_frames=400)
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=60)
+        assert proc.returncode == 128 + sig, err[-2000:]
+        assert "Traceback" not in err
+        assert f"{sig.name}: stopped at" in out and "Resume with: " in out
+        frames = load_checkpoint(run_dir / "checkpoint.pt")["frames"]
+        steps, _ = read_scalar_csv(scalars(run_dir) / "train" / "updates.csv")
+        assert steps[-1] == frames, "the checkpoint holds every logged step"
+    # The printed command resumes the run (here with a shorter budget).
+    command = shlex.split(out.split("Resume with: ")[1].splitlines()[0])
+    assert command[0] == "python" and f"hydra.run.dir={run_dir}" in command
+    target = f"collector.total_frames={frames + 2 * FRAMES_PER_BATCH}"
+    command = [sys.executable] + [
+        target if arg.startswith("collector.total_frames=") else arg
+        for arg in command[1:]
+    ]
+    resumed = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    assert f"Done: {frames + 2 * FRAMES_PER_BATCH} frames" in resumed.stdout
 
 
-def test_resume_after_kill_continues_the_frame_count(tmp_path):
+def test_resume_refuses_a_changed_experiment(tmp_path):
     run_dir = tmp_path / "run"
-    cmd = [
+    run_recipe(run_dir, "bonus=vae", "collector.total_frames=200")
+    config = (run_dir / "config_resolved.yaml").read_text()
+    ckpt_mtime = (run_dir / "checkpoint.pt").stat().st_mtime_ns
+    changes = {
+        "env.name=Walker2d-v5": "env.name: 'HalfCheetah-v5' -> 'Walker2d-v5'",
+        "bonus=none": "bonus: 'vae' -> 'none'",
+    }
+    refused = {
+        message: start_recipe(
+            run_dir, "bonus=vae", change, "collector.total_frames=400"
+        )
+        for change, message in changes.items()
+    }
+    for message, proc in refused.items():
+        proc = finish(proc, check=False)
+        assert proc.returncode != 0
+        assert "the experiment changed" in proc.stderr and message in proc.stderr
+    assert (run_dir / "config_resolved.yaml").read_text() == config
+    assert (run_dir / "checkpoint.pt").stat().st_mtime_ns == ckpt_mtime
+
+
+def test_runs_without_a_logger(tmp_path):
+    # The bonus stored at collection time, on Hopper: its only end-to-end run here.
+    run_dir = tmp_path / "run"
+    proc = run_recipe(
+        run_dir,
+        "logger.backend=",
+        "env.name=Hopper-v5",
+        "bonus=vae",
+        "intrinsic.bonus_at=collection",
+        "collector.total_frames=600",
+    )
+    assert "Done: 600 frames" in proc.stdout and "Learning curve: None" in proc.stdout
+    assert not (run_dir / "logs").exists()
+    ckpt = load_checkpoint(run_dir / "checkpoint.pt")
+    assert ckpt["frames"] == 600 and len(ckpt["stats"]["returns"]) > 0
+
+
+@pytest.mark.parametrize(
+    "launcher, seeds",
+    # submitit_local starts a process per job: 2 jobs (one seed) keep it short.
+    [("local", [0, 1]), pytest.param("submitit_local", [0], marks=pytest.mark.slow)],
+)
+def test_sweep_runs_each_job_once_and_a_rerun_starts_no_new_work(
+    tmp_path, launcher, seeds
+):
+    sweep = [
         sys.executable,
         str(MAIN),
-        f"hydra.run.dir={run_dir}",
-        *TINY,
-        "bonus=vae",
-        "collector.total_frames=1000000",
+        "-m",
+        "+experiment=tiny",
+        f"hydra/launcher={launcher}",
+        f"hydra.sweep.dir={tmp_path}",
+        "collector.total_frames=1000",  # tiny's 2 batches (not in the run names)
+        "optim.utd_ratio=0.02",  # 10 updates per batch
     ]
-    ckpt_path = run_dir / "checkpoint.pt"
-    killed = kill_after_checkpoint(cmd, ckpt_path, min_frames=400)
-    killed_at = killed["frames"]
-    assert killed_at >= 400
-    target = killed_at + 2 * FRAMES_PER_BATCH
-    out = run_recipe(
-        run_dir, "bonus=vae", "resume=true", f"collector.total_frames={target}"
-    )
-    ckpt = load_checkpoint(ckpt_path)
-    assert ckpt["frames"] == target
-    assert ckpt["replay_buffer"]["size"] == target
-    assert ckpt["updates"] == killed["updates"] + 2 * 20
-    assert f"Done: {target} frames" in out.stdout
-    steps, _ = read_scalar_csv(scalars(run_dir) / "time" / "fps.csv")
-    assert steps[-1] == target
+    if seeds == [0]:
+        sweep.append("seed=0")  # replaces the experiment's seeds
+    first = subprocess.run(sweep, capture_output=True, text=True, timeout=600)
+    assert first.returncode == 0, first.stderr[-3000:]
+    ckpts = sorted(tmp_path.glob("*/checkpoint.pt"))
+    assert [p.parent.name for p in ckpts] == [
+        f"+setting={setting},optim.utd_ratio=0.02,seed={seed}"
+        for setting in ("none", "vae")
+        for seed in seeds
+    ]
+    assert all(load_checkpoint(p)["frames"] == 1000 for p in ckpts)
+    mtimes = [p.stat().st_mtime_ns for p in ckpts]
+    again = subprocess.run(sweep, capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert [p.stat().st_mtime_ns for p in ckpts] == mtimes
+    if launcher != "local":
+        return
+    # The seeds are different runs.
+    losses = [
+        read_scalar_csv(scalars(ckpt.parent) / "train" / "loss_value.csv")[1]
+        for ckpt in ckpts[2:]
+    ]
+    assert not np.array_equal(*losses)
+    # The aggregation command summarises DDPG runs too (what report.py did).
+    out = tmp_path / "results"
+    assert aggregate.main([str(tmp_path), "--out", str(out), "--reps", "50"]) == 0
+    summary = pd.read_csv(out / "summary.csv")
+    assert sorted(summary["setting"]) == ["none", "vae"]
+    assert (summary["seeds"] == 2).all() and summary["eval_return_iqm"].notna().all()
 
 
 def test_replay_buffer_bonus_equals_env_bonus():
@@ -222,23 +337,11 @@ def test_replay_buffer_bonus_equals_env_bonus():
     env.close()
 
 
-def test_replay_buffer_state_round_trip():
-    buffer = utils.make_replay_buffer(8)
-    data = {"observation": torch.arange(10.0)[:, None]}
-    buffer.extend(TensorDict(data, [10]))  # wraps: slots 0-1 overwritten
-    state = utils.replay_buffer_state(buffer)
-    assert state["size"] == 8
-    other = utils.make_replay_buffer(8)
-    utils.load_replay_buffer_state(other, state)
-    assert len(other) == 8 and other._writer._cursor == buffer._writer._cursor
-    other.extend(TensorDict({"observation": torch.tensor([[10.0]])}, [1]))
-    assert other.storage.get(torch.tensor([2]))["observation"].item() == 10.0
-
-
 @pytest.mark.parametrize(
     "override, message",
     [
         ("bonus=banana", "bonus must be one of"),
+        ("resume=maybe", "resume must be one of"),
         ("intrinsic.bonus_at=never", "intrinsic.bonus_at must be one of"),
         ("intrinsic.normalization=median", "intrinsic.normalization must be one of"),
         ("intrinsic.normalization=return_std", "return_std needs whole trajectories"),
@@ -259,9 +362,3 @@ def test_unknown_env_id_fails_clearly():
     utils.check_config(cfg)
     with pytest.raises(ValueError, match="HalfCheetah-v99"):
         utils.make_env(cfg, 1, seed=0)
-
-
-def test_resume_without_checkpoint_fails_clearly_from_the_command_line(tmp_path):
-    proc = run_recipe(tmp_path / "bad", "resume=true", check=False)
-    assert proc.returncode != 0
-    assert "no checkpoint" in proc.stdout + proc.stderr

@@ -23,42 +23,60 @@ For every collected batch of ``frames_per_batch`` transitions, in this order:
 Evaluation runs the actor without noise on the extrinsic reward only.
 
 Run: ``python recipes/ddpg_mujoco/main.py bonus=vae env.name=HalfCheetah-v5``
-Resume a killed run: ``... hydra.run.dir=<its run dir> resume=true``.
+Sweep: ``python recipes/ddpg_mujoco/main.py -m +experiment=figure3`` (rerun it to
+resume: finished runs are skipped, killed ones continue).
+Resume a killed run: ``... hydra.run.dir=<its run dir>`` (``resume=auto``, the
+default, continues from the checkpoint; the resumed run logs exactly what the
+uninterrupted run would have). Ctrl-C or SIGTERM saves a checkpoint and exits.
 """
 
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 
+import cloudpickle
 import hydra
+import numpy as np
 import torch
+import utils  # the builders beside this script
 from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
+from omegaconf import OmegaConf
 from tqdm import tqdm
 from utils import (
     OBS_KEY,
     ObservationNormalizer,
+    ScalarMeans,
     check_config,
-    load_replay_buffer_state,
     make_bonus,
     make_collector,
     make_ddpg,
     make_env,
     make_replay_buffer,
-    replay_buffer_state,
     replay_keys,
 )
 
 from torchrl_surprise.experiments import (
+    Checkpointer,
     EpisodeStats,
+    Progress,
+    RNGState,
+    StopSignal,
     evaluate_episodes,
-    get_rng_state,
+    find_scalar_log,
     get_run_logger,
     plot_learning_curves,
     prepare_run,
-    save_checkpoint,
-    set_rng_state,
+    read_scalar_csv,
+    resume_command,
 )
+
+# Sweep launchers pickle this script's task function for their worker processes,
+# where the module beside the script is not importable (submitit, Ray): it travels
+# by value instead.
+cloudpickle.register_pickle_by_value(utils)
 
 EVAL_SEED_OFFSET = 10_000
 
@@ -69,8 +87,24 @@ def evaluate(env, actor, episodes: int) -> float:
     return sum(returns) / max(len(returns), 1)
 
 
-def _mean(values: list[torch.Tensor]) -> float:
-    return torch.stack(values).mean().item() if values else float("nan")
+def plot_returns(log_dir: Path, path: Path, title: str) -> Path | None:
+    """Train and evaluation returns, read back from the run's CSV logs."""
+    curves = {}
+    for name, label in (
+        ("train/episode_return", "train (with noise)"),
+        ("eval/episode_return", "eval (deterministic)"),
+    ):
+        try:
+            steps, values = read_scalar_csv(find_scalar_log(log_dir, name))
+        except FileNotFoundError:  # not logged (logger.backend=) or not yet
+            continue
+        finite = np.isfinite(values)  # NaN before the first episode ends
+        curves[label] = (steps[finite], values[finite])
+    if not curves:
+        return None
+    return plot_learning_curves(
+        curves, path, title=title, ylabel="extrinsic episode return"
+    )
 
 
 @hydra.main(config_path=".", config_name="config", version_base=None)
@@ -78,11 +112,15 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
     check_config(cfg)
     run_dir = Path(HydraConfig.get().runtime.output_dir)
     ckpt_path, ckpt = prepare_run(cfg, run_dir)
-    frames = ckpt["frames"] if ckpt else 0
-    updates = ckpt["updates"] if ckpt else 0
+    if ckpt and ckpt["frames"] >= cfg.collector.total_frames:
+        # A finished run in a rerun sweep: nothing to build.
+        print(f"Nothing to do: {ckpt['frames']} frames already done in {run_dir}.")
+        return
 
     # ---- envs, models, losses, buffer -----------------------------------------
-    env = make_env(cfg, cfg.env.num_envs, seed=cfg.seed + frames)
+    # Seeded with cfg.seed whatever the checkpoint: a resumed run restores the
+    # episodes in progress from the collector's state instead.
+    env = make_env(cfg, cfg.env.num_envs, seed=cfg.seed)
     eval_env = make_env(cfg, cfg.eval.num_envs, seed=cfg.seed + EVAL_SEED_OFFSET)
     eval_env.eval_seed = cfg.seed + EVAL_SEED_OFFSET
     obs_dim = env.observation_spec[OBS_KEY].shape[-1]
@@ -108,98 +146,83 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
     stored_keys = replay_keys(bonus_transform, cfg.intrinsic.bonus_at)
 
     stats = EpisodeStats(window=cfg.logger.episode_window)
-    history: dict[str, list] = {
-        "frames": [],
-        "return": [],
-        "eval_frames": [],
-        "eval_return": [],
-    }
-    next_eval = cfg.eval.interval_frames
-    next_ckpt = cfg.checkpoint.interval_frames
+    # Per-update scalars not yet logged (means over the updates between log lines).
+    pending = ScalarMeans()
+    progress = Progress(
+        frames=0,
+        updates=0,
+        next_eval=cfg.eval.interval_frames,
+        next_ckpt=cfg.checkpoint.interval_frames,
+    )
+    # The collector holds the episodes in progress; it runs to total_frames (and
+    # acts at random up to init_random_frames) from its own saved frame count, so
+    # it is built for the whole run.
+    collector = make_collector(env, policy, cfg)
+    # What a checkpoint holds, saved and loaded from this one mapping (RNG last:
+    # building the run above drew random numbers).
+    checkpointer = Checkpointer(
+        ckpt_path,
+        {
+            "progress": progress,
+            # actor, critic and the target critic
+            "loss_module": loss_module,
+            "target_updater": target_updater,
+            "noise": noise,
+            "actor_optim": actor_optim,
+            "critic_optim": critic_optim,
+            "obs_norm": obs_norm,
+            # the VAE, the bonus statistics and the schedule's frame counter
+            "bonus_transform": bonus_transform,
+            "vae_optim": vae_optim,
+            # TorchRL's state: storage, write cursor, sampler
+            "replay_buffer": buffer,
+            "collector": collector,
+            "stats": stats,
+            "pending_logs": pending,
+            "rng": RNGState(),
+        },
+        config=OmegaConf.to_container(cfg, resolve=True),
+    )
     if ckpt:
-        loss_module.load_state_dict(ckpt["loss_module"])
-        noise.load_state_dict(ckpt["noise"])
-        actor_optim.load_state_dict(ckpt["actor_optim"])
-        critic_optim.load_state_dict(ckpt["critic_optim"])
-        obs_norm.load_state_dict(ckpt["obs_norm"])
-        if bonus_transform is not None:
-            bonus_transform.load_state_dict(ckpt["bonus_transform"])
-            vae_optim.load_state_dict(ckpt["vae_optim"])
-        load_replay_buffer_state(buffer, ckpt["replay_buffer"])
-        stats.load_state_dict(ckpt["stats"])
-        history = ckpt["history"]
-        next_eval, next_ckpt = ckpt["next_eval"], ckpt["next_ckpt"]
-        set_rng_state(ckpt["rng"])
-
-    def checkpoint() -> None:
-        save_checkpoint(
-            ckpt_path,
-            {
-                "frames": frames,
-                "updates": updates,
-                # actor, critic and the target critic
-                "loss_module": loss_module.state_dict(),
-                "noise": noise.state_dict(),
-                "actor_optim": actor_optim.state_dict(),
-                "critic_optim": critic_optim.state_dict(),
-                "obs_norm": obs_norm.state_dict(),
-                # the VAE, the bonus statistics and the schedule's frame counter
-                "bonus_transform": None
-                if bonus_transform is None
-                else bonus_transform.state_dict(),
-                "vae_optim": None if vae_optim is None else vae_optim.state_dict(),
-                "replay_buffer": replay_buffer_state(buffer),
-                "stats": stats.state_dict(),
-                "history": history,
-                "next_eval": next_eval,
-                "next_ckpt": next_ckpt,
-                "rng": get_rng_state(),
-            },
-        )
-
+        checkpointer.load(ckpt)
+    frames, updates = progress.frames, progress.updates
     logger = get_run_logger(
         cfg.logger.backend, run_dir, "ddpg", cfg.logger.project_name
     )
-    remaining = cfg.collector.total_frames - frames
-    if remaining <= 0:
-        print(f"Nothing to do: {frames} frames already done in {run_dir}.")
-        return
-    collector = make_collector(
-        env,
-        policy,
-        cfg,
-        total_frames=remaining,
-        init_random_frames=max(0, cfg.collector.init_random_frames - frames),
-    )
     updates_per_batch = int(cfg.collector.frames_per_batch * cfg.optim.utd_ratio)
+    stop = StopSignal()
+
+    def add_bonus_scalars(next_td) -> None:
+        # The raw bonus, and the normalised one that is mixed into the reward.
+        pending.add(
+            "train/intrinsic_reward", next_td[bonus_transform.intrinsic_reward_key]
+        )
+        if bonus_transform.normalized_reward_key is not None:
+            pending.add(
+                "train/intrinsic_reward_normalized",
+                next_td[bonus_transform.normalized_reward_key],
+            )
 
     # ---- training loop ----------------------------------------------------------
     pbar = tqdm(
-        total=cfg.collector.total_frames, initial=frames, unit="f", desc=cfg.bonus
+        total=cfg.collector.total_frames,
+        initial=frames,
+        unit="f",
+        desc=cfg.bonus,
+        # In a sweep, parallel bars garble each other: the logs hold the progress.
+        disable=HydraConfig.get().mode == RunMode.MULTIRUN,
     )
     start, start_frames, start_updates = time.perf_counter(), frames, updates
-    logs: dict[str, list[torch.Tensor]] = {}
-
-    def log_bonus(logs, next_td) -> None:
-        # The raw bonus, and the normalised one that is mixed into the reward.
-        logs.setdefault("train/intrinsic_reward", []).append(
-            next_td[bonus_transform.intrinsic_reward_key].mean()
-        )
-        if bonus_transform.normalized_reward_key is not None:
-            logs.setdefault("train/intrinsic_reward_normalized", []).append(
-                next_td[bonus_transform.normalized_reward_key].mean()
-            )
-
-    fps = ups = 0.0
-    for iteration, data in enumerate(collector):
+    for data in collector:
         frames += data.numel()
+        iteration = frames // cfg.collector.frames_per_batch - 1
         stats.update(data)
         obs_norm.update(data["next", OBS_KEY])
         if bonus_at_collection:
             with torch.no_grad():
                 bonus_transform.set_frames(frames)
                 data = bonus_transform(obs_norm(data))
-            log_bonus(logs, data["next"])
+            add_bonus_scalars(data["next"])
         buffer.extend(data.select(*stored_keys).reshape(-1))
 
         if frames >= cfg.collector.init_random_frames:
@@ -209,7 +232,7 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
                     with torch.no_grad():
                         bonus_transform.set_frames(frames)
                         sample = bonus_transform(obs_norm(sample))
-                    log_bonus(logs, sample["next"])
+                    add_bonus_scalars(sample["next"])
                 loss_value, _ = loss_module.loss_value(sample)
                 critic_optim.zero_grad()
                 loss_value.backward()
@@ -220,9 +243,9 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
                 actor_optim.step()
                 target_updater.step()
                 updates += 1
-                logs.setdefault("loss_value", []).append(loss_value.detach())
-                logs.setdefault("loss_actor", []).append(loss_actor.detach())
-                logs.setdefault("reward", []).append(sample["next", "reward"].mean())
+                pending.add("train/loss_value", loss_value)
+                pending.add("train/loss_actor", loss_actor)
+                pending.add("train/reward", sample["next", "reward"])
 
                 if vae_loss is not None and updates % cfg.intrinsic.update_every == 0:
                     vae_batch = obs_norm(buffer.sample(cfg.intrinsic.batch_size))
@@ -232,7 +255,7 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
                     vae_total.backward()
                     vae_optim.step()
                     for key, value in vae_td.items():
-                        logs.setdefault(f"bonus/{key}", []).append(value.detach())
+                        pending.add(f"bonus/{key}", value)
 
         pbar.update(data.numel())
         elapsed = time.perf_counter() - start
@@ -247,51 +270,44 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
                 "time/fps": fps,
                 "time/updates_per_s": ups,
             }
-            if logs.get("loss_value"):
-                metrics["train/loss_value"] = _mean(logs["loss_value"])
-                metrics["train/loss_actor"] = _mean(logs["loss_actor"])
-                metrics["train/reward"] = _mean(logs["reward"])
             if bonus_transform is not None:
                 metrics["train/intrinsic_coef"] = bonus_transform.current_coef()
-            for key, values in logs.items():
-                if "/" in key:
-                    metrics[key] = _mean(values)
-            logs.clear()
-            for name, value in metrics.items():
-                logger.log_scalar(name, value, step=frames)
-            if stats.returns:
-                history["frames"].append(frames)
-                history["return"].append(stats.mean_return)
+            metrics.update(pending.pop_means())
+            if logger is not None:
+                for name, value in metrics.items():
+                    logger.log_scalar(name, value, step=frames)
             pbar.set_postfix(
                 fps=f"{fps:.0f}", ups=f"{ups:.0f}", ret=f"{stats.mean_return:.1f}"
             )
 
-        if frames >= next_eval:
-            next_eval += cfg.eval.interval_frames
-            actor.eval()
+        progress.frames, progress.updates = frames, updates
+        if frames >= progress.next_eval:
+            progress.next_eval += cfg.eval.interval_frames
             ret = evaluate(eval_env, actor, cfg.eval.episodes)
-            actor.train()
-            logger.log_scalar("eval/episode_return", ret, step=frames)
-            history["eval_frames"].append(frames)
-            history["eval_return"].append(ret)
-        if frames >= next_ckpt:
-            next_ckpt += cfg.checkpoint.interval_frames
-            checkpoint()
+            if logger is not None:
+                logger.log_scalar("eval/episode_return", ret, step=frames)
+        # Checkpoints at the end of an iteration only: updates done, logs written.
+        if frames >= progress.next_ckpt:
+            progress.next_ckpt += cfg.checkpoint.interval_frames
+            checkpointer.save()
+        if stop:
+            checkpointer.save()
+            pbar.close()
+            collector.shutdown()
+            print(
+                f"{stop.name}: stopped at {frames} frames, checkpoint saved. "
+                f"Resume with: {resume_command(run_dir)}"
+            )
+            sys.exit(128 + stop.received)
+    stop.restore()
     pbar.close()
+    checkpointer.save()
     collector.shutdown()
-    checkpoint()
 
-    curves = {"train (with noise)": (history["frames"], history["return"])}
-    if history["eval_frames"]:
-        curves["eval (deterministic)"] = (
-            history["eval_frames"],
-            history["eval_return"],
-        )
-    curve = plot_learning_curves(
-        curves,
+    curve = plot_returns(
+        run_dir / "logs",
         run_dir / "learning_curve.png",
         title=f"{cfg.env.name}: DDPG + {cfg.bonus} (seed {cfg.seed})",
-        ylabel="extrinsic episode return",
     )
     print(
         f"Done: {frames} frames, {updates} updates, {stats.episodes} episodes, last "

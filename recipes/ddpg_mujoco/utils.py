@@ -5,9 +5,8 @@ from __future__ import annotations
 import math
 
 import torch
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule, TensorDictSequential
-from torchrl.collectors import Collector
 from torchrl.data import Composite, LazyTensorStorage, TensorDictReplayBuffer, Unbounded
 from torchrl.envs import Compose, InitTracker, RewardSum, StepCounter
 from torchrl.envs.transforms import Transform
@@ -23,6 +22,7 @@ from torchrl.objectives import DDPGLoss, SoftUpdate
 
 from torchrl_surprise import StateVAE, VAELoss, VAESurpriseTransform
 from torchrl_surprise.envs import make_mujoco_env
+from torchrl_surprise.experiments import RESUME_MODES, ResumableCollector
 from torchrl_surprise.transforms import NORMALIZATIONS, make_coef_schedule
 
 BONUSES = ("none", "vae")
@@ -48,6 +48,8 @@ def check_config(cfg) -> None:
     """Fails early, naming the value, on a config the recipe cannot run."""
     if cfg.bonus not in BONUSES:
         raise ValueError(f"bonus must be one of {BONUSES}, got {cfg.bonus!r}.")
+    if str(cfg.resume).lower() not in RESUME_MODES:
+        raise ValueError(f"resume must be one of {RESUME_MODES}, got {cfg.resume!r}.")
     icfg = cfg.intrinsic
     if icfg.bonus_at not in BONUS_AT:
         raise ValueError(
@@ -306,35 +308,63 @@ def _bonus_keys(transform) -> list:
 
 
 def make_replay_buffer(size: int) -> TensorDictReplayBuffer:
-    """Uniform replay over a preallocated tensor storage (sampled with replacement)."""
+    """Uniform replay over a preallocated tensor storage (sampled with replacement).
+
+    TorchRL's ``state_dict()`` of the buffer holds the storage (all ``size`` slots,
+    filled or not), the write cursor and the sampler: a checkpoint saves it whole.
+    """
     return TensorDictReplayBuffer(storage=LazyTensorStorage(int(size)))
 
 
-def replay_buffer_state(buffer: TensorDictReplayBuffer) -> dict:
-    """The filled part of the buffer and its write cursor (not the empty slots)."""
-    n = len(buffer)
-    data = buffer.storage.get(torch.arange(n)).clone() if n else None
-    return {
-        "data": None if data is None else data.to_dict(),
-        "size": n,
-        "writer": buffer._writer.state_dict(),
-    }
+class ScalarMeans:
+    """Per-update scalars gathered between two log lines, logged as their means.
+
+    It is part of a checkpoint: a run stopped between two log lines and resumed
+    logs the same means as the uninterrupted run.
+
+    Examples:
+        >>> means = ScalarMeans()
+        >>> means.add("train/loss", torch.tensor(1.0))
+        >>> means.add("train/loss", torch.tensor(2.0))
+        >>> restored = ScalarMeans()
+        >>> restored.load_state_dict(means.state_dict())
+        >>> restored.pop_means()
+        {'train/loss': 1.5}
+        >>> restored.pop_means()
+        {}
+    """
+
+    def __init__(self):
+        self.values: dict[str, list[torch.Tensor]] = {}
+
+    def add(self, name: str, value: torch.Tensor) -> None:
+        self.values.setdefault(name, []).append(value.detach().mean())
+
+    def pop_means(self) -> dict[str, float]:
+        """The mean of each scalar since the last call; then starts afresh."""
+        means = {k: torch.stack(v).mean().item() for k, v in self.values.items()}
+        self.values.clear()
+        return means
+
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        return {k: torch.stack(v) for k, v in self.values.items()}
+
+    def load_state_dict(self, state) -> None:
+        self.values = {k: list(v.unbind(0)) for k, v in state.items()}
 
 
-def load_replay_buffer_state(buffer: TensorDictReplayBuffer, state: dict) -> None:
-    """Refills an empty buffer from :func:`replay_buffer_state`."""
-    if state["size"]:
-        data = TensorDict.from_dict(state["data"], batch_size=[state["size"]])
-        buffer.extend(data)
-    buffer._writer.load_state_dict(state["writer"])
+def make_collector(env, policy, cfg):
+    """The collector of the whole run, random actions for ``init_random_frames``.
 
-
-def make_collector(env, policy, cfg, total_frames: int, init_random_frames: int):
-    return Collector(
+    A :class:`~torchrl_surprise.experiments.ResumableCollector`: its state holds the
+    episodes in progress (MuJoCo simulator states included) and its frame count, so
+    a resumed run continues them, and the random phase, where they were.
+    """
+    return ResumableCollector(
         env,
         policy,
         frames_per_batch=cfg.collector.frames_per_batch,
-        total_frames=total_frames,
-        init_random_frames=init_random_frames,
+        total_frames=cfg.collector.total_frames,
+        init_random_frames=cfg.collector.init_random_frames,
         auto_register_policy_transforms=False,
     )
