@@ -1,0 +1,303 @@
+"""PPO with a surprise bonus on MiniGrid, in TorchRL.
+
+Every update, in this order:
+
+1. the collector gathers ``frames_per_env`` steps from each of ``num_envs`` envs
+   (16 x 128 = 2,048 transitions by default);
+2. the bonus of every transition is computed in one batched pass with the bonus
+   model as it was during the rollout, and mixed, ``r = r_ext + coef *
+   normalize(r_int)``, or kept for the intrinsic critic (the env's reward is kept
+   as ``extrinsic_reward`` and is what is logged);
+3. the advantages, once for the whole batch, before the epochs (as CleanRL and
+   torch-ac do): GAE on the (mixed) reward, or with
+   ``intrinsic.intrinsic_critic=true`` the two streams ``A_ext + coef * A_int``
+   (:class:`torchrl_surprise.TwoStreamAdvantage`), with the critics as they were
+   during the rollout;
+4. ``loss.epochs`` passes over the batch in shuffled minibatches of
+   ``loss.minibatch_size`` (a TorchRL ``ReplayBuffer`` with
+   ``SamplerWithoutReplacement``), one Adam step of TorchRL's ``ClipPPOLoss``
+   (plus :class:`IntrinsicValueLoss` with two critics) per minibatch;
+5. the bonus model (VAE, ICM or RND predictor) takes ``update_steps`` gradient
+   steps on the states of the batch, which is then discarded (no replay); with
+   ``intrinsic.vae.variant=info_gain`` this comes before step 2 (the bonus is the
+   posterior shift of this update).
+
+Run: ``python recipes/ppo_minigrid/main.py bonus=vae env.name=MiniGrid-MultiRoom-N3-S4-v0``
+Sweep: ``python recipes/ppo_minigrid/main.py -m +experiment=n3s4`` (rerun it to resume).
+Resume a killed run: ``... hydra.run.dir=<its run dir>`` (``resume=auto``, the
+default, continues from the checkpoint; the resumed run logs exactly what the
+uninterrupted run would have). Ctrl-C or SIGTERM saves a checkpoint and exits.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import cloudpickle
+import hydra
+import torch
+import utils  # the builders beside this script
+from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
+from omegaconf import OmegaConf
+from tqdm import tqdm
+from utils import (
+    EVAL_SEED_OFFSET,
+    check_config,
+    evaluate,
+    load_bonus_model,
+    make_actor_critic,
+    make_bonus,
+    make_collector,
+    make_env,
+    make_minibatch_buffer,
+    make_ppo,
+    rollout_metrics,
+    train_bonus_model,
+)
+
+from torchrl_surprise.experiments import (
+    Checkpointer,
+    EpisodeStats,
+    Progress,
+    RNGState,
+    StopSignal,
+    get_run_logger,
+    plot_scalar_logs,
+    prepare_run,
+    resume_command,
+)
+
+# Sweep launchers pickle this script's task function for their worker processes,
+# where the module beside the script is not importable (submitit, Ray): it travels
+# by value instead.
+cloudpickle.register_pickle_by_value(utils)
+
+# What ClipPPOLoss returns that is logged (means over the update's minibatches).
+LOGGED_LOSSES = (
+    "loss_objective",
+    "loss_critic",
+    "loss_entropy",
+    "entropy",
+    "clip_fraction",
+    "kl_approx",
+)
+
+
+@hydra.main(config_path=".", config_name="config", version_base=None)
+def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
+    check_config(cfg)
+    run_dir = Path(HydraConfig.get().runtime.output_dir)
+    ckpt_path, ckpt = prepare_run(cfg, run_dir)
+
+    # ---- envs, models, losses -------------------------------------------------
+    env = make_env(cfg, cfg.env.num_envs, seed=cfg.seed)
+    bonus_transform, bonus_loss, env_side = make_bonus(cfg, env.action_spec, cfg.bonus)
+    if env_side is not None:
+        env.append_transform(env_side)
+    if cfg.intrinsic.init_from and not ckpt:
+        # Transfer: the bonus model starts from another run's (a resumed run
+        # restores its own from the checkpoint below).
+        source_frames = load_bonus_model(
+            bonus_transform, cfg.bonus, cfg.intrinsic.init_from
+        )
+        print(f"Bonus model from {cfg.intrinsic.init_from} ({source_frames} frames).")
+    eval_seed = cfg.seed + EVAL_SEED_OFFSET
+    eval_env = make_env(cfg, cfg.eval.num_envs, seed=eval_seed)
+    use_int_critic = cfg.intrinsic.intrinsic_critic and bonus_transform is not None
+    # The policy records the log-probability of each action it takes: PPO's ratio.
+    model, int_value = make_actor_critic(
+        env.action_spec, use_int_critic, return_log_prob=True
+    )
+    policy = model.get_policy_operator()
+    loss_module, advantage, int_value_loss = make_ppo(
+        cfg, model, int_value, bonus_transform
+    )
+    params = list(model.parameters())
+    if int_value is not None:
+        shared = {id(p) for p in params}
+        params += [p for p in int_value.parameters() if id(p) not in shared]
+    optim = torch.optim.Adam(params, lr=cfg.optim.lr, eps=cfg.optim.eps)
+    bonus_optim = None
+    if bonus_loss is not None:
+        bonus_params = [p for p in bonus_loss.parameters() if p.requires_grad]
+        # fused: the same Adam update in one kernel (~20% faster VAE steps on CPU)
+        bonus_optim = torch.optim.Adam(bonus_params, lr=cfg.intrinsic.lr, fused=True)
+    buffer = make_minibatch_buffer(cfg)
+
+    stats = EpisodeStats(window=cfg.logger.episode_window)
+    progress = Progress(
+        frames=0,
+        next_eval=cfg.eval.interval_frames,
+        next_ckpt=cfg.checkpoint.interval_frames,
+    )
+    # The collector holds the episodes in progress; it runs to total_frames from
+    # its own saved frame count, so it is built for the whole run.
+    collector = make_collector(
+        env, policy, cfg, total_frames=cfg.collector.total_frames
+    )
+    # What a checkpoint holds, saved and loaded from this one mapping (RNG last:
+    # building the run above drew random numbers).
+    checkpointer = Checkpointer(
+        ckpt_path,
+        {
+            "progress": progress,
+            "model": model,
+            "int_value": int_value,
+            "optim": optim,
+            "bonus_transform": bonus_transform,
+            "bonus_optim": bonus_optim,
+            "collector": collector,
+            # the minibatch order of the next update's first epoch, drawn already
+            "minibatch_sampler": buffer.sampler,
+            "stats": stats,
+            "rng": RNGState(),
+        },
+        config=OmegaConf.to_container(cfg, resolve=True),
+    )
+    if ckpt:
+        checkpointer.load(ckpt)
+    frames = progress.frames
+    logger = get_run_logger(cfg.logger.backend, run_dir, "ppo", cfg.logger.project_name)
+    if frames >= cfg.collector.total_frames:
+        print(f"Nothing to do: {frames} frames already done in {run_dir}.")
+        collector.shutdown()
+        return
+    variant = cfg.intrinsic.vae.variant if cfg.bonus == "vae" else None
+
+    def train_bonus(data):
+        """The bonus model's ``update_steps`` gradient steps on the batch's states."""
+        if bonus_loss is None or not cfg.intrinsic.finetune:
+            return None
+        if env_side is not None:
+            # RNDLoss normalises states with the env-side transform's statistics.
+            bonus_loss.obs_rms = env_side.obs_rms
+        return train_bonus_model(
+            bonus_loss, bonus_optim, data, cfg.intrinsic.update_steps
+        )
+
+    stop = StopSignal()
+
+    # ---- training loop ----------------------------------------------------------
+    pbar = tqdm(
+        total=cfg.collector.total_frames,
+        initial=frames,
+        unit="f",
+        desc=cfg.bonus,
+        # In a sweep, parallel bars garble each other: the logs hold the progress.
+        disable=HydraConfig.get().mode == RunMode.MULTIRUN,
+    )
+    start, start_frames = time.perf_counter(), frames
+    for data in collector:
+        frames += data.numel()
+        iteration = frames // data.numel() - 1
+        stats.update(data)
+
+        if variant == "info_gain":
+            # The bonus is the posterior shift of this batch's VAE update: the VAE
+            # trains first (step 5 comes before step 2).
+            bonus_transform.snapshot()
+            bonus_td = train_bonus(data)
+        # Step 2: the bonus of the whole rollout, with the bonus model as it was
+        # during it.
+        with torch.no_grad():
+            if bonus_transform is not None:
+                data = bonus_transform(data)
+            # Step 3: advantages and value targets, once, before the epochs: GAE
+            # on the (mixed) reward, or the two streams (TwoStreamAdvantage).
+            data = advantage(data)
+
+        # Step 4: epochs of clipped-PPO steps on shuffled minibatches of the batch.
+        buffer.extend(data.reshape(-1))
+        minibatch_logs = []
+        for _ in range(cfg.loss.epochs):
+            for batch in buffer:
+                loss_td = loss_module(batch)
+                loss = (
+                    loss_td["loss_objective"]
+                    + loss_td["loss_critic"]
+                    + loss_td["loss_entropy"]
+                )
+                logs = loss_td.select(*LOGGED_LOSSES).detach()
+                if int_value_loss is not None:
+                    loss_int = int_value_loss(batch)["loss_critic_int"]
+                    loss = loss + loss_int
+                    logs["loss_critic_int"] = loss_int.detach()
+                optim.zero_grad()
+                loss.backward()
+                logs["grad_norm"] = torch.nn.utils.clip_grad_norm_(
+                    params, cfg.optim.max_grad_norm
+                )
+                optim.step()
+                minibatch_logs.append(logs)
+        logs = torch.stack(minibatch_logs).apply(lambda x: x.mean(), batch_size=[])
+
+        # Step 5: train the bonus model on the states of this rollout.
+        if variant != "info_gain":
+            bonus_td = train_bonus(data)
+        if variant == "lagged_kl" and iteration % cfg.intrinsic.vae.lag_updates == 0:
+            bonus_transform.snapshot()
+
+        pbar.update(data.numel())
+        fps = (frames - start_frames) / (time.perf_counter() - start)
+        if iteration % cfg.logger.log_interval == 0:
+            metrics = rollout_metrics(stats, data, bonus_transform, bonus_td)
+            metrics.update({f"train/{k}": v.item() for k, v in logs.items()})
+            metrics["time/fps"] = fps
+            if logger is not None:
+                for name, value in metrics.items():
+                    logger.log_scalar(name, value, step=frames)
+            pbar.set_postfix(fps=f"{fps:.0f}", ret=f"{stats.mean_return:.3f}")
+
+        progress.frames = frames
+        if frames >= progress.next_eval:
+            progress.next_eval += cfg.eval.interval_frames
+            model.eval()
+            ret, success = evaluate(
+                eval_env,
+                policy,
+                cfg.eval.episodes,
+                seed=eval_seed,
+                deterministic=cfg.eval.deterministic,
+            )
+            model.train()
+            if logger is not None:
+                logger.log_scalar("eval/episode_return", ret, step=frames)
+                logger.log_scalar("eval/success_rate", success, step=frames)
+        if frames >= progress.next_ckpt:
+            progress.next_ckpt += cfg.checkpoint.interval_frames
+            checkpointer.save()
+        if stop:
+            checkpointer.save()
+            pbar.close()
+            collector.shutdown()
+            print(
+                f"{stop.name}: stopped at {frames} frames, checkpoint saved. "
+                f"Resume with: {resume_command(run_dir)}"
+            )
+            sys.exit(128 + stop.received)
+    stop.restore()
+    pbar.close()
+    checkpointer.save()
+    collector.shutdown()
+
+    curve = plot_scalar_logs(
+        run_dir / "logs",
+        "train/episode_return",
+        run_dir / "learning_curve.png",
+        label=cfg.bonus,
+        title=f"{cfg.env.name}: PPO + {cfg.bonus} (seed {cfg.seed})",
+        ylabel=f"extrinsic return ({cfg.logger.episode_window}-episode mean)",
+    )
+    print(
+        f"Done: {frames} frames, {stats.episodes} episodes, last "
+        f"{cfg.logger.episode_window}-episode mean return {stats.mean_return:.3f}, "
+        f"success rate {stats.success_rate:.2f}, {fps:.0f} frames/s.\n"
+        f"Learning curve: {curve}\nLogs: {run_dir / 'logs'}\nRun directory: {run_dir}"
+    )
+
+
+if __name__ == "__main__":
+    main()

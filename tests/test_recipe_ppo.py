@@ -1,0 +1,123 @@
+"""The PPO MiniGrid recipe, run end to end as a user runs it (tiny budgets), and its
+config checks in-process."""
+
+from __future__ import annotations
+
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from _recipe_run import differing_logs, kill_after_checkpoint
+from hydra import compose, initialize_config_dir
+
+from torchrl_surprise.experiments import load_checkpoint, read_scalar_csv
+
+RECIPE = Path(__file__).resolve().parents[1] / "recipes" / "ppo_minigrid"
+MAIN = RECIPE / "main.py"
+# 4 envs x 32 frames = 128 per update, 2 epochs of 2 minibatches of 64.
+TINY = [
+    "env.name=MiniGrid-MultiRoom-N3-S4-v0",
+    "env.num_envs=4",
+    "collector.frames_per_env=32",
+    "loss.epochs=2",
+    "loss.minibatch_size=64",
+    "eval.interval_frames=256",
+    "eval.episodes=4",
+    "eval.num_envs=2",
+    "checkpoint.interval_frames=128",
+]
+VAE_RUN = ["bonus=vae", "collector.total_frames=1024", "seed=3"]
+
+
+def _load_utils():
+    # Loaded under its own name: the other recipes have a utils.py too.
+    spec = importlib.util.spec_from_file_location(
+        "ppo_minigrid_utils", RECIPE / "utils.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def run_recipe(run_dir: Path, *overrides: str, check: bool = True):
+    cmd = [sys.executable, str(MAIN), f"hydra.run.dir={run_dir}", *TINY, *overrides]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    if check and proc.returncode != 0:
+        raise AssertionError(
+            f"recipe failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
+        )
+    return proc
+
+
+@pytest.fixture(scope="module")
+def vae_run(tmp_path_factory) -> Path:
+    """One uninterrupted run, the reference of the seed and resume tests."""
+    run_dir = tmp_path_factory.mktemp("ppo") / "whole"
+    run_recipe(run_dir, *VAE_RUN)
+    return run_dir
+
+
+@pytest.mark.parametrize("bonus", ["none", "vae", "icm", "rnd"])
+def test_every_bonus_runs_end_to_end(tmp_path, bonus):
+    run_dir = tmp_path / bonus
+    proc = run_recipe(run_dir, f"bonus={bonus}", "collector.total_frames=256")
+    assert "Learning curve:" in proc.stdout
+    assert (run_dir / "learning_curve.png").stat().st_size > 0
+    scalars = run_dir / "logs" / "ppo" / "scalars"
+    steps, fps = read_scalar_csv(scalars / "time" / "fps.csv")
+    assert list(steps) == [128, 256] and (fps > 0).all()
+    for name in ("loss_objective", "loss_critic", "clip_fraction", "kl_approx"):
+        _, values = read_scalar_csv(scalars / "train" / f"{name}.csv")
+        assert torch.isfinite(torch.as_tensor(values)).all(), name
+    assert (scalars / "eval" / "episode_return.csv").exists()
+    if bonus != "none":
+        _, raw = read_scalar_csv(scalars / "train" / "intrinsic_reward.csv")
+        assert torch.isfinite(torch.as_tensor(raw)).all()
+        assert (scalars / "train" / "loss_critic_int.csv").exists()
+        assert list((scalars / "bonus").iterdir()), "bonus-model losses are logged"
+    assert load_checkpoint(run_dir / "checkpoint.pt")["frames"] == 256
+
+
+def test_same_seed_same_logs_another_seed_differs(tmp_path, vae_run):
+    run_recipe(tmp_path / "again", *VAE_RUN)
+    assert differing_logs(vae_run, tmp_path / "again") == []
+    run_recipe(tmp_path / "other", *VAE_RUN[:-1], "seed=4")
+    assert "logs/ppo/scalars/train/loss_critic.csv" in differing_logs(
+        vae_run, tmp_path / "other"
+    )
+
+
+def test_killed_and_resumed_run_logs_what_the_uninterrupted_run_logs(tmp_path, vae_run):
+    killed_dir = tmp_path / "killed"
+    cmd = [sys.executable, str(MAIN), f"hydra.run.dir={killed_dir}", *TINY, *VAE_RUN]
+    killed = kill_after_checkpoint(cmd, killed_dir / "checkpoint.pt", min_frames=256)
+    assert 256 <= killed["frames"] < 1024, "the kill must land mid-run"
+    run_recipe(killed_dir, *VAE_RUN)
+    assert differing_logs(vae_run, killed_dir) == []
+
+
+def test_bad_config_fails_clearly_on_the_command_line(tmp_path):
+    proc = run_recipe(tmp_path / "bad", "loss.minibatch_size=1000", check=False)
+    assert proc.returncode != 0
+    assert "loss.minibatch_size must be an integer in [1, 128]" in proc.stderr
+    assert not (tmp_path / "bad" / "checkpoint.pt").exists()
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("bonus=banana", "bonus must be one of"),
+        ("loss.epochs=0", "loss.epochs must be a positive integer"),
+        ("loss.clip_epsilon=0", "loss.clip_epsilon must be > 0"),
+        ("intrinsic.normalization=median", "intrinsic.normalization must be one of"),
+    ],
+)
+def test_bad_config_is_refused_before_anything_runs(override, message):
+    utils = _load_utils()
+    with initialize_config_dir(config_dir=str(RECIPE), version_base=None):
+        cfg = compose(config_name="config", overrides=[*TINY, override])
+    with pytest.raises(ValueError, match=message):
+        utils.check_config(cfg)
