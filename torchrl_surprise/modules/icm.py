@@ -5,11 +5,14 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import torch
-import torch.nn.functional as F
 from tensordict.utils import NestedKey, unravel_key
 from torch import nn
 
-from torchrl_surprise.modules.vae import MiniGridEncoder, VectorEncoder
+from torchrl_surprise.modules.vae import (
+    MiniGridEncoder,
+    VectorEncoder,
+    _OneDNNLinear,
+)
 
 __all__ = ["ICMModel"]
 
@@ -57,14 +60,14 @@ class ICMModel(nn.Module):
         self.discrete = discrete
         feat = encoder.out_features
         self.inverse_model = nn.Sequential(
-            nn.Linear(2 * feat, hidden_dim),
+            _OneDNNLinear(2 * feat, hidden_dim),
             nn.ReLU(),
-            nn.Linear(hidden_dim, action_dim),
+            _OneDNNLinear(hidden_dim, action_dim),
         )
         self.forward_model = nn.Sequential(
-            nn.Linear(feat + action_dim, hidden_dim),
+            _OneDNNLinear(feat + action_dim, hidden_dim),
             nn.ReLU(),
-            nn.Linear(hidden_dim, feat),
+            _OneDNNLinear(hidden_dim, feat),
         )
 
     @classmethod
@@ -122,9 +125,15 @@ class ICMModel(nn.Module):
             return action.float()
         if action.shape and action.shape[-1] == 1:
             action = action.squeeze(-1)
-        if ((action < 0) | (action >= self.action_dim)).any():
-            raise ValueError(f"action: expected integers in [0, {self.action_dim}).")
-        return F.one_hot(action.long(), self.action_dim).float()
+        if action.numel():
+            # One reduction for both bounds; F.one_hot would check them again.
+            low, high = torch.aminmax(action)
+            if low.item() < 0 or high.item() >= self.action_dim:
+                raise ValueError(
+                    f"action: expected integers in [0, {self.action_dim})."
+                )
+        one_hot = action.new_zeros(*action.shape, self.action_dim, dtype=torch.float)
+        return one_hot.scatter_(-1, action.long().unsqueeze(-1), 1.0)
 
     def action_target(self, action: torch.Tensor) -> torch.Tensor:
         """Integer class targets (discrete) or float targets (continuous)."""
@@ -136,6 +145,29 @@ class ICMModel(nn.Module):
         """``phi(s)`` for the observation tensors of ``s``."""
         return self.encoder(*observations)
 
+    def paired_features(
+        self,
+        observations: Sequence[torch.Tensor],
+        next_observations: Sequence[torch.Tensor],
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(phi(s), phi(s'))``, in one encoder pass when their shapes match.
+
+        Every layer of the encoder maps each state on its own, so stacking
+        ``s`` and ``s'`` into one batch gives the same features as two calls, at
+        the fixed cost (kernel launches, input checks, the embedding's
+        backward) of one.
+        """
+        if len(observations) == len(next_observations) and all(
+            o.shape == n.shape and o.dtype == n.dtype
+            for o, n in zip(observations, next_observations, strict=True)
+        ):
+            stacked = [
+                torch.stack([o, n]) for o, n in zip(observations, next_observations)
+            ]
+            phi, phi_next = self.encoder(*stacked).unbind(0)
+            return phi, phi_next
+        return self.features(observations), self.features(next_observations)
+
     def forward_error(
         self,
         observations: Sequence[torch.Tensor],
@@ -143,7 +175,6 @@ class ICMModel(nn.Module):
         next_observations: Sequence[torch.Tensor],
     ) -> torch.Tensor:
         """``0.5 * ||f(phi(s), a) - phi(s')||^2`` per transition, shape ``[...]``."""
-        phi = self.features(observations)
-        phi_next = self.features(next_observations)
+        phi, phi_next = self.paired_features(observations, next_observations)
         pred = self.forward_model(torch.cat([phi, self.encode_action(action)], -1))
         return 0.5 * (pred - phi_next).pow(2).sum(-1)

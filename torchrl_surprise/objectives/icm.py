@@ -86,21 +86,21 @@ class ICMLoss(_BonusModelLoss):
         obs = self._read(tensordict, keys)
         next_obs = self._read(tensordict, [("next", *_as_tuple(k)) for k in keys])
         (action,) = self._read(tensordict, [self.tensor_keys.action])
-        phi = self.icm.features(obs)
-        phi_next = self.icm.features(next_obs)
+        phi, phi_next = self.icm.paired_features(obs, next_obs)
         inverse_out = self.icm.inverse_model(torch.cat([phi, phi_next], -1))
-        target = self.icm.action_target(action)
+        encoded_action = self.icm.encode_action(action)
         if self.icm.discrete:
+            # The class of each one-hot row: what icm.action_target returns,
+            # without validating and encoding the action a second time.
+            target = encoded_action.argmax(-1)
             inverse = F.cross_entropy(
                 inverse_out.reshape(-1, inverse_out.shape[-1]),
                 target.reshape(-1),
                 reduction="none",
             ).reshape(target.shape)
         else:
-            inverse = 0.5 * (inverse_out - target).pow(2).sum(-1)
-        pred = self.icm.forward_model(
-            torch.cat([phi.detach(), self.icm.encode_action(action)], -1)
-        )
+            inverse = 0.5 * (inverse_out - encoded_action).pow(2).sum(-1)
+        pred = self.icm.forward_model(torch.cat([phi.detach(), encoded_action], -1))
         forward = 0.5 * (pred - phi_next.detach()).pow(2).sum(-1)
         return TensorDict(
             {
