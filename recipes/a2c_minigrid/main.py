@@ -60,6 +60,7 @@ from torchrl_surprise.experiments.minigrid import (
     evaluate,
     load_bonus_model,
     rollout_metrics,
+    train_bonus_model,
 )
 
 # Sweep launchers pickle this script's task function for their worker processes,
@@ -146,20 +147,8 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
     variant = cfg.intrinsic.vae.variant if cfg.bonus == "vae" else None
     bonus_after_update = variant == "info_gain"
 
-    def train_bonus_model(data):
-        """``update_steps`` gradient steps of the bonus model on the rollout."""
-        bonus_td = None
-        if bonus_loss is None or not cfg.intrinsic.finetune:
-            return None
-        if env_side is not None:
-            bonus_loss.obs_rms = env_side.obs_rms
-        for _ in range(cfg.intrinsic.update_steps):
-            bonus_td = bonus_loss(data)
-            bonus_total = sum(v for k, v in bonus_td.items() if k.startswith("loss_"))
-            bonus_optim.zero_grad()
-            bonus_total.backward()
-            bonus_optim.step()
-        return bonus_td
+    # finetune=false: a transferred bonus model stays frozen.
+    bonus_steps = cfg.intrinsic.update_steps if cfg.intrinsic.finetune else 0
 
     stop = StopSignal()
 
@@ -181,7 +170,9 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         if bonus_after_update:
             # The information gain of this rollout's VAE update on each state.
             bonus_transform.snapshot()
-            bonus_td = train_bonus_model(data)
+            bonus_td = train_bonus_model(
+                bonus_loss, bonus_optim, data, bonus_steps, env_side
+            )
         # Step 2: the bonus of the whole rollout, with the VAE as it was during it.
         with torch.no_grad():
             if bonus_transform is not None:
@@ -203,7 +194,9 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
 
         # Step 4: train the bonus model on the states of this rollout.
         if not bonus_after_update:
-            bonus_td = train_bonus_model(data)
+            bonus_td = train_bonus_model(
+                bonus_loss, bonus_optim, data, bonus_steps, env_side
+            )
         if variant == "lagged_kl" and iteration % cfg.intrinsic.vae.lag_updates == 0:
             bonus_transform.snapshot()
 

@@ -167,16 +167,8 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         return
     variant = cfg.intrinsic.vae.variant if cfg.bonus == "vae" else None
 
-    def train_bonus(data):
-        """The bonus model's ``update_steps`` gradient steps on the batch's states."""
-        if bonus_loss is None or not cfg.intrinsic.finetune:
-            return None
-        if env_side is not None:
-            # RNDLoss normalises states with the env-side transform's statistics.
-            bonus_loss.obs_rms = env_side.obs_rms
-        return train_bonus_model(
-            bonus_loss, bonus_optim, data, cfg.intrinsic.update_steps
-        )
+    # finetune=false: a transferred bonus model stays frozen.
+    bonus_steps = cfg.intrinsic.update_steps if cfg.intrinsic.finetune else 0
 
     stop = StopSignal()
 
@@ -199,7 +191,9 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
             # The bonus is the posterior shift of this batch's VAE update: the VAE
             # trains first (step 5 comes before step 2).
             bonus_transform.snapshot()
-            bonus_td = train_bonus(data)
+            bonus_td = train_bonus_model(
+                bonus_loss, bonus_optim, data, bonus_steps, env_side
+            )
         # Step 2: the bonus of the whole rollout, with the bonus model as it was
         # during it.
         with torch.no_grad():
@@ -236,7 +230,9 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
 
         # Step 5: train the bonus model on the states of this rollout.
         if variant != "info_gain":
-            bonus_td = train_bonus(data)
+            bonus_td = train_bonus_model(
+                bonus_loss, bonus_optim, data, bonus_steps, env_side
+            )
         if variant == "lagged_kl" and iteration % cfg.intrinsic.vae.lag_updates == 0:
             bonus_transform.snapshot()
 

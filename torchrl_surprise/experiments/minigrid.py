@@ -320,14 +320,21 @@ EVAL_SEED_OFFSET = 10_000
 """The evaluation envs are seeded ``seed + EVAL_SEED_OFFSET``: other episodes."""
 
 
-def train_bonus_model(bonus_loss, optim, data, steps: int):
+def train_bonus_model(bonus_loss, optim, data, steps: int, env_side=None):
     """``steps`` gradient steps of the bonus model on the states of ``data``.
 
     Each step minimises the sum of the ``loss_*`` entries of ``bonus_loss(data)``.
+    With RND (``env_side``, TorchRL's ``RNDTransform``), ``RNDLoss`` normalises
+    the states with the env-side transform's running statistics.
 
     Returns:
-        The loss TensorDict of the last step (``None`` when ``steps`` is 0).
+        The loss TensorDict of the last step (``None`` without a bonus model or
+        when ``steps`` is 0).
     """
+    if bonus_loss is None:
+        return None
+    if env_side is not None:
+        bonus_loss.obs_rms = env_side.obs_rms
     bonus_td = None
     for _ in range(steps):
         bonus_td = bonus_loss(data)
