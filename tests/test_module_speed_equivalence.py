@@ -27,7 +27,7 @@ from torchrl_surprise.modules.vae import (
     MINIGRID_NUM_STATES,
     MiniGridDecoder,
     MiniGridEncoder,
-    _OneDNNLinear,
+    OneDNNLinear,
 )
 
 SIZES = (MINIGRID_NUM_OBJECTS, MINIGRID_NUM_COLORS, MINIGRID_NUM_STATES)
@@ -338,7 +338,7 @@ def test_paired_features_equal_two_encoder_calls():
 )
 def test_onednn_linear_equals_nn_linear(batch, in_features, out_features):
     torch.manual_seed(3)
-    fast = _OneDNNLinear(in_features, out_features)
+    fast = OneDNNLinear(in_features, out_features)
     torch.manual_seed(3)
     plain = nn.Linear(in_features, out_features)
     # Same class family and initialisation: runs at a given seed start alike.
@@ -363,7 +363,7 @@ def test_onednn_linear_equals_nn_linear(batch, in_features, out_features):
 
 def test_onednn_linear_is_not_traced_by_torch_compile():
     """torch.compile's CPU backend only lowers the oneDNN op for frozen weights."""
-    layer = _OneDNNLinear(256, 256)
+    layer = OneDNNLinear(256, 256)
     seen = []
 
     def record_backend(graph_module, example_inputs):

@@ -10,8 +10,8 @@ from torch import nn
 
 from torchrl_surprise.modules.vae import (
     MiniGridEncoder,
+    OneDNNLinear,
     VectorEncoder,
-    _OneDNNLinear,
 )
 
 __all__ = ["ICMModel"]
@@ -60,14 +60,14 @@ class ICMModel(nn.Module):
         self.discrete = discrete
         feat = encoder.out_features
         self.inverse_model = nn.Sequential(
-            _OneDNNLinear(2 * feat, hidden_dim),
+            OneDNNLinear(2 * feat, hidden_dim),
             nn.ReLU(),
-            _OneDNNLinear(hidden_dim, action_dim),
+            OneDNNLinear(hidden_dim, action_dim),
         )
         self.forward_model = nn.Sequential(
-            _OneDNNLinear(feat + action_dim, hidden_dim),
+            OneDNNLinear(feat + action_dim, hidden_dim),
             nn.ReLU(),
-            _OneDNNLinear(hidden_dim, feat),
+            OneDNNLinear(hidden_dim, feat),
         )
 
     @classmethod

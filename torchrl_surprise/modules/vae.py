@@ -27,6 +27,7 @@ __all__ = [
     "GaussianVectorDecoder",
     "MiniGridDecoder",
     "MiniGridEncoder",
+    "OneDNNLinear",
     "StateVAE",
     "VectorEncoder",
     "kl_to_standard_normal",
@@ -148,7 +149,7 @@ class _OneDNNLinearFunction(torch.autograd.Function):
         return grad_x, grad_w, grad_b
 
 
-class _OneDNNLinear(nn.Linear):
+class OneDNNLinear(nn.Linear):
     """``nn.Linear`` whose large float32 CPU products run on oneDNN.
 
     Same parameters, initialisation and state_dict as ``nn.Linear``; results
@@ -277,7 +278,7 @@ class MiniGridEncoder(nn.Module):
         nn.init.normal_(self.embedding.weight, std=1.0 / math.sqrt(3 * grid_size**2))
         self.bias = nn.Parameter(torch.zeros(hidden_dim))
         self.hidden = nn.Sequential(
-            nn.ReLU(), _OneDNNLinear(hidden_dim, hidden_dim), nn.ReLU()
+            nn.ReLU(), OneDNNLinear(hidden_dim, hidden_dim), nn.ReLU()
         )
 
     def _indices(
@@ -366,11 +367,11 @@ class MiniGridDecoder(nn.Module):
         out = grid_size * grid_size * sum(self._sizes)
         out += MINIGRID_NUM_DIRECTIONS if use_direction else 0
         self.net = nn.Sequential(
-            _OneDNNLinear(latent_dim, hidden_dim),
+            OneDNNLinear(latent_dim, hidden_dim),
             nn.ReLU(),
-            _OneDNNLinear(hidden_dim, hidden_dim),
+            OneDNNLinear(hidden_dim, hidden_dim),
             nn.ReLU(),
-            _OneDNNLinear(hidden_dim, out),
+            OneDNNLinear(hidden_dim, out),
         )
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
@@ -430,7 +431,7 @@ class VectorEncoder(nn.Module):
         self.out_features = hidden_dim
         layers, width = [], obs_dim
         for _ in range(num_layers):
-            layers += [_OneDNNLinear(width, hidden_dim), nn.ReLU()]
+            layers += [OneDNNLinear(width, hidden_dim), nn.ReLU()]
             width = hidden_dim
         self.net = nn.Sequential(*layers)
 
@@ -467,11 +468,11 @@ class GaussianVectorDecoder(nn.Module):
     ):
         super().__init__()
         self.net = nn.Sequential(
-            _OneDNNLinear(latent_dim, hidden_dim),
+            OneDNNLinear(latent_dim, hidden_dim),
             nn.ReLU(),
-            _OneDNNLinear(hidden_dim, hidden_dim),
+            OneDNNLinear(hidden_dim, hidden_dim),
             nn.ReLU(),
-            _OneDNNLinear(hidden_dim, obs_dim),
+            OneDNNLinear(hidden_dim, obs_dim),
         )
         self.log_scale = nn.Parameter(torch.zeros(obs_dim))
         self.min_log_scale = min_log_scale
@@ -530,7 +531,7 @@ class StateVAE(nn.Module):
         self.decoder = decoder
         self.latent_dim = latent_dim
         self.min_scale = min_scale
-        self.head = _OneDNNLinear(encoder.out_features, 2 * latent_dim)
+        self.head = OneDNNLinear(encoder.out_features, 2 * latent_dim)
         # softplus(bias) + min_scale == 1 at a zero pre-activation.
         self._scale_bias = math.log(math.expm1(1.0 - min_scale))
 

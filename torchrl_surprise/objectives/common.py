@@ -7,17 +7,22 @@ from tensordict import TensorDictBase
 from tensordict.utils import NestedKey, unravel_key
 from torchrl.objectives.common import LossModule
 
-__all__: list[str] = []
+__all__ = ["BonusModelLoss", "REDUCTIONS", "as_key_tuple"]
 
 REDUCTIONS = ("mean", "sum", "none")
 
 
-def _as_tuple(key: NestedKey) -> tuple[str, ...]:
+def as_key_tuple(key: NestedKey) -> tuple[str, ...]:
+    """A nested key as a tuple: ``"obs"`` -> ``("obs",)``."""
     return (key,) if isinstance(key, str) else tuple(key)
 
 
-class _BonusModelLoss(LossModule):
-    """A ``LossModule`` whose ``observations`` key is a sequence of keys."""
+class BonusModelLoss(LossModule):
+    """The base of the bonus-model losses (:class:`VAELoss`, :class:`ICMLoss`).
+
+    A ``LossModule`` whose ``observations`` key is a sequence of keys, with a
+    ``reduction`` and input checks that name the missing key or the NaN.
+    """
 
     def __init__(self, reduction: str):
         if reduction not in REDUCTIONS:

@@ -10,12 +10,12 @@ from tensordict import TensorDict, TensorDictBase
 from tensordict.utils import NestedKey
 
 from torchrl_surprise.modules.icm import ICMModel
-from torchrl_surprise.objectives.common import _as_tuple, _BonusModelLoss
+from torchrl_surprise.objectives.common import BonusModelLoss, as_key_tuple
 
 __all__ = ["ICMLoss"]
 
 
-class ICMLoss(_BonusModelLoss):
+class ICMLoss(BonusModelLoss):
     """Forward and inverse losses of the Intrinsic Curiosity Module.
 
     ``loss_inverse = (1 - beta) * CE(g(phi(s), phi(s')), a)`` (MSE for continuous
@@ -75,7 +75,7 @@ class ICMLoss(_BonusModelLoss):
     def in_keys(self) -> list[NestedKey]:
         """The keys the loss reads."""
         obs = list(self.tensor_keys.observations)
-        nxt = [("next", *_as_tuple(k)) for k in obs]
+        nxt = [("next", *as_key_tuple(k)) for k in obs]
         return obs + nxt + [self.tensor_keys.action]
 
     def forward(self, tensordict: TensorDictBase = None, **kwargs) -> TensorDictBase:
@@ -84,7 +84,7 @@ class ICMLoss(_BonusModelLoss):
             tensordict = TensorDict(kwargs)
         keys = self.tensor_keys.observations
         obs = self._read(tensordict, keys)
-        next_obs = self._read(tensordict, [("next", *_as_tuple(k)) for k in keys])
+        next_obs = self._read(tensordict, [("next", *as_key_tuple(k)) for k in keys])
         (action,) = self._read(tensordict, [self.tensor_keys.action])
         phi, phi_next = self.icm.paired_features(obs, next_obs)
         inverse_out = self.icm.inverse_model(torch.cat([phi, phi_next], -1))

@@ -8,12 +8,12 @@ from tensordict import TensorDict, TensorDictBase
 from tensordict.utils import NestedKey
 
 from torchrl_surprise.modules.vae import StateVAE, kl_to_standard_normal
-from torchrl_surprise.objectives.common import _as_tuple, _BonusModelLoss
+from torchrl_surprise.objectives.common import BonusModelLoss, as_key_tuple
 
 __all__ = ["VAELoss"]
 
 
-class VAELoss(_BonusModelLoss):
+class VAELoss(BonusModelLoss):
     """Negative ELBO of a :class:`~torchrl_surprise.modules.StateVAE`.
 
     ``loss_reconstruction = -E_q[log p(s|z)]`` (one reparameterised sample) and
@@ -69,7 +69,9 @@ class VAELoss(_BonusModelLoss):
         super().__init__(reduction)
         self.vae = vae
         self.kl_weight = kl_weight
-        self.set_keys(observations=tuple(("next", *_as_tuple(k)) for k in vae.in_keys))
+        self.set_keys(
+            observations=tuple(("next", *as_key_tuple(k)) for k in vae.in_keys)
+        )
 
     @property
     def in_keys(self) -> list[NestedKey]:
