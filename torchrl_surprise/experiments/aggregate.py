@@ -115,6 +115,7 @@ __all__ = [
     "plot_profiles",
     "read_oracle",
     "report_table",
+    "status_text",
     "runs_metadata",
     "setting_label",
     "summarize",
@@ -945,6 +946,27 @@ def _frames_to(row: pd.Series, fraction: float) -> str:
     return f"{median} ({reached}/{int(row['seeds'])})"
 
 
+def status_text(summary: pd.DataFrame, meta: pd.DataFrame | None) -> str:
+    """One paragraph (reStructuredText) on what the tables cover: seeds per
+    setting and the runs that had not reached their budget when aggregated."""
+    counts = ", ".join(
+        f"{row['setting']} {int(row['seeds'])}" for _, row in summary.iterrows()
+    )
+    text = f"Seeds per setting: {counts}."
+    if meta is not None and "finished" in meta and not meta["finished"].all():
+        late = meta[~meta["finished"].astype(bool)]
+        runs = ", ".join(
+            f"{r.setting} seed {r.seed} ({int(r.last_frame) // 1000}k of "
+            f"{int(r.total_frames) // 1000}k frames)"
+            for r in late.itertuples()
+        )
+        text += (
+            f" Unfinished when aggregated: {runs}; these enter the tables at the "
+            "frames they reached, and rerunning the sweep command completes them."
+        )
+    return text + "\n"
+
+
 def report_table(summary: pd.DataFrame) -> pd.DataFrame:
     """The summary in the columns a report shows: IQM [95% CI] and frames to
     thresholds (median over seeds, with how many seeds reached it).
@@ -967,7 +989,7 @@ def report_table(summary: pd.DataFrame) -> pd.DataFrame:
             "frames": f"{int(row['budget']) / 1000:.0f}k",
             ret: _interval(row, "train_return"),
             "success": _interval(row, "train_success"),
-            "eval return": _interval(row, "eval_return"),
+            f"eval {ret}": _interval(row, "eval_return"),
         }
         for fraction in FRACTIONS:
             out[f"frames to {fraction}"] = _frames_to(row, fraction)
@@ -1005,6 +1027,7 @@ def aggregate(
         ),
     }
     tables["report.csv"] = report_table(tables["summary.csv"])
+    (out / "status.rst").write_text(status_text(tables["summary.csv"], meta))
     paths = {}
     for name, table in tables.items():
         paths[name] = out / name
