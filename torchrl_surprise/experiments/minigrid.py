@@ -57,6 +57,7 @@ __all__ = [
     "MiniGridConvTrunk",
     "EVAL_SEED_OFFSET",
     "check_config",
+    "documented_results",
     "evaluate",
     "init_rl_starter",
     "load_bonus_model",
@@ -437,3 +438,32 @@ def load_bonus_model(transform, bonus: str, source: str | os.PathLike) -> int:
             f"(sizes in intrinsic.{bonus}.* must match the source run's): {err}"
         ) from err
     return int(ckpt.get("frames", 0))
+
+
+def documented_results(
+    task: str, frames: int, results_dir: str | os.PathLike = "docs/results"
+) -> list[str]:
+    """What the committed sweep results say about ``task`` at ``frames``, one line
+    per setting (from each experiment's ``summary.csv`` whose budget is
+    ``frames``), so a run's final message can show what other learners reach.
+
+    Returns an empty list when nothing was measured at that budget.
+    """
+    import csv
+
+    lines = []
+    for path in sorted(Path(results_dir).glob("*/summary.csv")):
+        with open(path) as f:
+            for row in csv.DictReader(f):
+                if row.get("task") != task or not row.get("budget"):
+                    continue
+                if abs(float(row["budget"]) - frames) > 0.01 * frames:
+                    continue
+                lines.append(
+                    f"  {row['setting']:<14} return / oracle {float(row['train_return_iqm']):.2f} "
+                    f"[{float(row['train_return_ci_low']):.2f}, "
+                    f"{float(row['train_return_ci_high']):.2f}] (IQM, 95% CI), success "
+                    f"{float(row['train_success_iqm']):.2f}, {row['seeds']} seeds "
+                    f"({path.parent.name})"
+                )
+    return lines
