@@ -26,5 +26,8 @@ test: $(STAMP)
 docs: $(STAMP)
 	$(PY) -m sphinx -W --keep-going -b html docs docs/_build/html
 
+# The speed targets, one table of side-by-side ratios (benchmarks/README.md);
+# installs the optional `bench` extra (the peer, torch-ac) first. ARGS=--quick: smoke run.
 bench: $(STAMP)
-	$(PY) benchmarks/bench_bonus.py
+	$(PY) -m pip install --quiet -e ".[dev,bench]"
+	$(PY) benchmarks/bench_speed.py $(ARGS)

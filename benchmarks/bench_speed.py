@@ -1,0 +1,794 @@
+"""The speed targets, measured side by side: one table of ratios, written as JSON.
+
+Every number is a ratio of two setups run interleaved in this one command
+(A, B, A, B, ... with the order alternating each round, so that both see the
+same machine load), the median over rounds of the per-round ratio. The load
+average is recorded with each measurement.
+
+1. Bonus overhead in the A2C recipe: frames/s with ``bonus=vae|icm|rnd`` over
+   ``bonus=none`` (recipe defaults, ``recipes/a2c_minigrid``).
+2. DDPG (``recipes/ddpg_mujoco``, Hopper-v5): the recipe's ``time/updates_per_s``
+   (its whole loop, collection included) over a bare eager-PyTorch DDPG update of
+   the same sizes (OurDDPG's loop: 256-256 MLPs, batch 256, Adam, soft target
+   update, 1 thread); and ``bonus=vae`` over ``bonus=none``.
+3. The A2C recipe (``bonus=none``) over torch-ac 1.4.0 running the same A2C
+   (rl-starter-files' model and defaults), on MultiRoom-N3S4 and DoorKey-8x8.
+   Skipped, with a message, when torch-ac is not installed (``pip install -e
+   ".[bench]"``).
+4. The env pipeline: ``make_minigrid_env`` / ``make_mujoco_env`` (with the
+   recipes' numbers of envs, ``env.rollout`` with random actions) over a raw
+   gymnasium loop of one env of the same id.
+5. Memory: each recipe's peak resident memory (a subprocess with a short budget,
+   ``ru_maxrss`` from ``wait4``), the DDPG replay buffer's bytes per transition
+   (measured in the recipe's buffer) extrapolated to 1M transitions, and two runs
+   side by side against 24 GiB.
+
+Recipes and the peer run as subprocesses (their start-up is not timed: the recipes
+time their own training loop, the peer is timed the same way). Usage::
+
+    python benchmarks/bench_speed.py            # ~20 min on 2 busy cores
+    python benchmarks/bench_speed.py --quick    # smoke run, ~4 min
+    python benchmarks/bench_speed.py --items 2 4 --rounds 5
+
+Writes ``<out>.json`` and ``<out>.txt`` (default ``docs/results/bench_speed``;
+with ``--quick`` a temporary directory unless ``--out`` is given).
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import importlib.util
+import json
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+ROOT = Path(__file__).resolve().parents[1]
+A2C_MAIN = ROOT / "recipes" / "a2c_minigrid" / "main.py"
+DDPG_MAIN = ROOT / "recipes" / "ddpg_mujoco" / "main.py"
+GIB = 1024**3
+MEMORY_LIMIT = 24 * GIB
+BONUSES = ("vae", "icm", "rnd")
+PEER_ENVS = ("MiniGrid-MultiRoom-N3-S4-v0", "MiniGrid-DoorKey-8x8-v0")
+MINIGRID_PIPELINE_ENVS = ("MiniGrid-DoorKey-8x8-v0", "MiniGrid-MultiRoom-N3-S4-v0")
+MUJOCO_PIPELINE_ENVS = ("Hopper-v5", "HalfCheetah-v5")
+A2C_NUM_ENVS = 16  # recipes/a2c_minigrid/config.yaml
+DDPG_NUM_ENVS = 4  # recipes/ddpg_mujoco/config.yaml
+
+__all__ = ["main"]
+
+
+# ---- measurement helpers ---------------------------------------------------------
+def load() -> list[float]:
+    return [round(x, 2) for x in os.getloadavg()]
+
+
+@dataclass
+class Child:
+    returncode: int
+    stdout: str
+    stderr: str
+    maxrss_bytes: int
+    wall_s: float
+
+
+def run_child(cmd: list[str]) -> Child:
+    """Runs ``cmd`` to the end; its own peak resident memory from ``wait4``."""
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
+        start = time.perf_counter()
+        proc = subprocess.Popen(cmd, stdout=out, stderr=err, cwd=ROOT, env=env)
+        _, status, usage = os.wait4(proc.pid, 0)
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        wall = time.perf_counter() - start
+        out.seek(0)
+        err.seek(0)
+        child = Child(
+            proc.returncode,
+            out.read().decode(errors="replace"),
+            err.read().decode(errors="replace"),
+            usage.ru_maxrss * 1024,  # kB on Linux
+            wall,
+        )
+    if child.returncode != 0:
+        raise RuntimeError(
+            f"{' '.join(cmd)} failed ({child.returncode}):\n{child.stderr[-3000:]}"
+        )
+    return child
+
+
+def last_scalar(run_dir: Path, logger: str, name: str) -> float:
+    from torchrl_surprise.experiments import read_scalar_csv
+
+    _, values = read_scalar_csv(run_dir / "logs" / logger / "scalars" / f"{name}.csv")
+    return float(values[-1])
+
+
+@dataclass
+class Sample:
+    value: float
+    load1: float
+    extra: dict = field(default_factory=dict)
+
+
+def interleave(
+    setups: dict[str, Callable[[], Sample]], rounds: int
+) -> dict[str, list[Sample]]:
+    """Runs every setup once per round, the order reversed every other round."""
+    names = list(setups)
+    samples: dict[str, list[Sample]] = {n: [] for n in names}
+    for r in range(rounds):
+        for name in names if r % 2 == 0 else names[::-1]:
+            sample = setups[name]()
+            print(
+                f"    round {r + 1}/{rounds} {name}: {sample.value:,.1f} "
+                f"(load {sample.load1:.2f})",
+                flush=True,
+            )
+            samples[name].append(sample)
+    return samples
+
+
+def paired_ratio(samples: dict[str, list[Sample]], num: str, den: str) -> float:
+    """Median over rounds of ``num / den`` measured in the same round."""
+    return statistics.median(
+        a.value / b.value for a, b in zip(samples[num], samples[den], strict=True)
+    )
+
+
+def med(samples: list[Sample]) -> float:
+    return statistics.median(s.value for s in samples)
+
+
+@dataclass
+class Target:
+    item: int
+    name: str
+    measured: float | None
+    goal: float
+    higher_is_better: bool = True
+    note: str = ""
+
+    @property
+    def met(self) -> bool | None:
+        if self.measured is None:
+            return None
+        if self.higher_is_better:
+            return self.measured >= self.goal
+        return self.measured <= self.goal
+
+
+# ---- item 1 and 3: the A2C recipe -------------------------------------------------
+def a2c_recipe(bonus: str, env_name: str | None, frames: int, tmp: Path) -> Sample:
+    run_dir = tmp / f"a2c_{bonus}_{len(list(tmp.iterdir()))}"
+    overrides = [
+        f"bonus={bonus}",
+        f"collector.total_frames={frames}",
+        f"eval.interval_frames={10 * frames}",
+        f"checkpoint.interval_frames={10 * frames}",
+        f"hydra.run.dir={run_dir}",
+    ]
+    if env_name is not None:
+        overrides.append(f"env.name={env_name}")
+    load1 = os.getloadavg()[0]
+    child = run_child([sys.executable, str(A2C_MAIN), *overrides])
+    fps = last_scalar(run_dir, "a2c", "time/fps")
+    return Sample(fps, load1, {"maxrss_bytes": child.maxrss_bytes})
+
+
+# ---- item 3: the peer, torch-ac 1.4.0 ---------------------------------------------
+class RLStarterACModel(nn.Module):
+    """rl-starter-files' ``ACModel`` without memory or text (its defaults).
+
+    torch-ac does not ship it: 3 conv layers (16/32/64) on the 7x7x3 image and
+    64-unit actor and critic heads, its ``init_params``.
+    """
+
+    recurrent = False
+
+    def __init__(self, num_actions: int):
+        super().__init__()
+        self.image_conv = nn.Sequential(
+            nn.Conv2d(3, 16, (2, 2)),
+            nn.ReLU(),
+            nn.MaxPool2d((2, 2)),
+            nn.Conv2d(16, 32, (2, 2)),
+            nn.ReLU(),
+            nn.Conv2d(32, 64, (2, 2)),
+            nn.ReLU(),
+        )
+        self.actor = nn.Sequential(
+            nn.Linear(64, 64), nn.Tanh(), nn.Linear(64, num_actions)
+        )
+        self.critic = nn.Sequential(nn.Linear(64, 64), nn.Tanh(), nn.Linear(64, 1))
+        self.apply(self._init_params)
+
+    @staticmethod
+    def _init_params(m: nn.Module) -> None:
+        if isinstance(m, nn.Linear):
+            m.weight.data.normal_(0, 1)
+            m.weight.data *= 1 / torch.sqrt(m.weight.data.pow(2).sum(1, keepdim=True))
+            m.bias.data.fill_(0)
+
+    def forward(self, obs):
+        x = obs.image.transpose(1, 3).transpose(2, 3)
+        x = self.image_conv(x)
+        x = x.reshape(x.shape[0], -1)
+        dist = torch.distributions.Categorical(
+            logits=nn.functional.log_softmax(self.actor(x), dim=1)
+        )
+        return dist, self.critic(x).squeeze(1)
+
+
+def peer_worker(env_name: str, frames: int, seed: int, threads: int) -> None:
+    """torch-ac's A2C as rl-starter-files' train.py runs it; prints JSON."""
+    import gymnasium as gym
+    import torch_ac  # sets multiprocessing's start method: only in this process
+
+    from torchrl_surprise.envs import register_minigrid_envs
+
+    register_minigrid_envs()
+    torch.set_num_threads(threads)
+    torch.manual_seed(seed)
+
+    def preprocess_obss(obss, device=None):
+        # rl-starter-files' image preprocessing (its text tokenising is left out:
+        # the model does not read the mission, and leaving it out favours the peer)
+        images = torch.tensor(np.array([o["image"] for o in obss]), dtype=torch.float)
+        return torch_ac.DictList({"image": images})
+
+    envs = []
+    for i in range(A2C_NUM_ENVS):
+        env = gym.make(env_name)
+        env.reset(seed=seed + 10000 * i)
+        envs.append(env)
+    model = RLStarterACModel(envs[0].action_space.n)
+    algo = torch_ac.A2CAlgo(
+        envs,
+        model,
+        torch.device("cpu"),
+        num_frames_per_proc=8,
+        discount=0.99,
+        lr=1e-3,
+        gae_lambda=0.95,
+        entropy_coef=0.01,
+        value_loss_coef=0.5,
+        max_grad_norm=0.5,
+        recurrence=1,
+        rmsprop_alpha=0.99,
+        rmsprop_eps=1e-8,
+        preprocess_obss=preprocess_obss,
+    )
+    done, start = 0, time.perf_counter()
+    while done < frames:
+        exps, _ = algo.collect_experiences()
+        algo.update_parameters(exps)
+        done += algo.num_frames
+    fps = done / (time.perf_counter() - start)
+    print(json.dumps({"fps": fps}))
+
+
+def peer(env_name: str, frames: int, threads: int) -> Sample:
+    load1 = os.getloadavg()[0]
+    child = run_child(
+        [
+            sys.executable,
+            __file__,
+            "--peer-worker",
+            env_name,
+            str(frames),
+            "0",
+            str(threads),
+        ]
+    )
+    fps = json.loads(child.stdout.strip().splitlines()[-1])["fps"]
+    return Sample(fps, load1)
+
+
+# ---- item 2: DDPG ---------------------------------------------------------------
+def ddpg_recipe(bonus: str, frames: int, tmp: Path) -> Sample:
+    run_dir = tmp / f"ddpg_{bonus}_{len(list(tmp.iterdir()))}"
+    overrides = [
+        f"bonus={bonus}",
+        "env.name=Hopper-v5",
+        f"collector.total_frames={frames}",
+        # Updates from the first batch on (the default warm-up is 25k random frames).
+        "collector.init_random_frames=1000",
+        f"eval.interval_frames={10 * frames}",
+        f"checkpoint.interval_frames={10 * frames}",
+        "logger.log_interval=1",
+        f"hydra.run.dir={run_dir}",
+    ]
+    load1 = os.getloadavg()[0]
+    child = run_child([sys.executable, str(DDPG_MAIN), *overrides])
+    ups = last_scalar(run_dir, "ddpg", "time/updates_per_s")
+    return Sample(ups, load1, {"maxrss_bytes": child.maxrss_bytes})
+
+
+class _Actor(nn.Module):
+    def __init__(self, obs_dim: int, act_dim: int, max_action: float = 1.0):
+        super().__init__()
+        self.l1 = nn.Linear(obs_dim, 256)
+        self.l2 = nn.Linear(256, 256)
+        self.l3 = nn.Linear(256, act_dim)
+        self.max_action = max_action
+
+    def forward(self, state):
+        a = torch.relu(self.l1(state))
+        a = torch.relu(self.l2(a))
+        return self.max_action * torch.tanh(self.l3(a))
+
+
+class _Critic(nn.Module):
+    def __init__(self, obs_dim: int, act_dim: int):
+        super().__init__()
+        self.l1 = nn.Linear(obs_dim + act_dim, 256)
+        self.l2 = nn.Linear(256, 256)
+        self.l3 = nn.Linear(256, 1)
+
+    def forward(self, state, action):
+        q = torch.relu(self.l1(torch.cat([state, action], 1)))
+        q = torch.relu(self.l2(q))
+        return self.l3(q)
+
+
+class BareDDPG:
+    """OurDDPG's ``train`` (github.com/sfujim/TD3) in plain eager PyTorch.
+
+    As the recipe: no target actor (TorchRL's ``DDPGLoss(delay_actor=False)``),
+    a target critic with a soft update. The minibatch is drawn from numpy arrays
+    as in OurDDPG's ``ReplayBuffer.sample``.
+    """
+
+    def __init__(self, obs_dim=11, act_dim=3, size=100_000, batch=256, seed=0):
+        torch.manual_seed(seed)
+        rng = np.random.default_rng(seed)
+        self.actor = _Actor(obs_dim, act_dim)
+        self.critic = _Critic(obs_dim, act_dim)
+        self.critic_target = copy.deepcopy(self.critic)
+        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=3e-4)
+        self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=3e-4)
+        self.state = rng.standard_normal((size, obs_dim), dtype=np.float32)
+        self.action = rng.uniform(-1, 1, (size, act_dim)).astype(np.float32)
+        self.next_state = rng.standard_normal((size, obs_dim), dtype=np.float32)
+        self.reward = rng.standard_normal((size, 1), dtype=np.float32)
+        self.not_done = (rng.random((size, 1)) > 0.01).astype(np.float32)
+        self.size, self.batch = size, batch
+        self.discount, self.tau = 0.99, 0.005
+
+    def train(self) -> None:
+        ind = np.random.randint(0, self.size, size=self.batch)
+        state = torch.FloatTensor(self.state[ind])
+        action = torch.FloatTensor(self.action[ind])
+        next_state = torch.FloatTensor(self.next_state[ind])
+        reward = torch.FloatTensor(self.reward[ind])
+        not_done = torch.FloatTensor(self.not_done[ind])
+        target_q = self.critic_target(next_state, self.actor(next_state))
+        target_q = reward + (not_done * self.discount * target_q).detach()
+        current_q = self.critic(state, action)
+        critic_loss = nn.functional.mse_loss(current_q, target_q)
+        self.critic_optimizer.zero_grad()
+        critic_loss.backward()
+        self.critic_optimizer.step()
+        actor_loss = -self.critic(state, self.actor(state)).mean()
+        self.actor_optimizer.zero_grad()
+        actor_loss.backward()
+        self.actor_optimizer.step()
+        for param, target_param in zip(
+            self.critic.parameters(), self.critic_target.parameters()
+        ):
+            target_param.data.copy_(
+                self.tau * param.data + (1 - self.tau) * target_param.data
+            )
+
+
+def bare_ddpg(updates: int) -> Sample:
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        ddpg = BareDDPG()
+        for _ in range(20):  # warm-up
+            ddpg.train()
+        load1 = os.getloadavg()[0]
+        start = time.perf_counter()
+        for _ in range(updates):
+            ddpg.train()
+        return Sample(updates / (time.perf_counter() - start), load1)
+    finally:
+        torch.set_num_threads(previous)
+
+
+# ---- item 4: env pipeline -------------------------------------------------------
+def ours_env(make: Callable, steps: int) -> Sample:
+    env = make()
+    try:
+        n = max(env.batch_size.numel(), 1)
+        env.rollout(10, break_when_any_done=False)  # warm-up
+        horizon = max(steps // n, 1)
+        load1 = os.getloadavg()[0]
+        start = time.perf_counter()
+        env.rollout(horizon, break_when_any_done=False)
+        return Sample(horizon * n / (time.perf_counter() - start), load1)
+    finally:
+        env.close()
+
+
+def raw_env(env_name: str, steps: int) -> Sample:
+    import gymnasium as gym
+
+    env = gym.make(env_name)
+    env.reset(seed=0)
+    env.action_space.seed(0)
+    load1 = os.getloadavg()[0]
+    start = time.perf_counter()
+    for _ in range(steps):
+        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+        if terminated or truncated:
+            env.reset()
+    fps = steps / (time.perf_counter() - start)
+    env.close()
+    return Sample(fps, load1)
+
+
+# ---- item 5: replay buffer bytes -------------------------------------------------
+def ddpg_buffer_bytes_per_transition(env_name: str) -> float:
+    """Bytes per transition in the recipe's buffer, measured on a filled one."""
+    spec = importlib.util.spec_from_file_location(
+        "ddpg_mujoco_utils", DDPG_MAIN.parent / "utils.py"
+    )
+    utils = importlib.util.module_from_spec(spec)
+    sys.path.insert(0, str(DDPG_MAIN.parent))
+    try:
+        spec.loader.exec_module(utils)
+    finally:
+        sys.path.remove(str(DDPG_MAIN.parent))
+    from hydra import compose, initialize_config_dir
+
+    with initialize_config_dir(config_dir=str(DDPG_MAIN.parent), version_base=None):
+        cfg = compose(config_name="config", overrides=[f"env.name={env_name}"])
+    env = utils.make_env(cfg, 2, seed=0)
+    data = env.rollout(500, break_when_any_done=False).reshape(-1)
+    env.close()
+    size = data.numel()
+    buffer = utils.make_replay_buffer(size)
+    buffer.extend(data.select(*utils.replay_keys(None, "sample")))
+    storage = buffer.storage.get(slice(None))  # public: the stored transitions
+    nbytes = sum(
+        t.numel() * t.element_size()
+        for t in storage.values(include_nested=True, leaves_only=True)
+    )
+    return nbytes / size
+
+
+# ---- the run ---------------------------------------------------------------------
+@dataclass
+class Plan:
+    rounds: int
+    a2c_frames: int
+    peer_frames: int
+    ddpg_frames: int
+    bare_updates: int
+    env_steps: int
+
+
+FULL = Plan(
+    rounds=3,
+    a2c_frames=20_000,
+    peer_frames=20_000,
+    ddpg_frames=4_000,
+    bare_updates=1_500,
+    env_steps=8_000,
+)
+QUICK = Plan(
+    rounds=1,
+    a2c_frames=4_000,
+    peer_frames=4_000,
+    ddpg_frames=2_000,
+    bare_updates=300,
+    env_steps=2_000,
+)
+
+
+def machine() -> dict:
+    model = platform.processor()
+    try:
+        for line in subprocess.run(
+            ["lscpu"], capture_output=True, text=True, check=True
+        ).stdout.splitlines():
+            if line.startswith("Model name:"):
+                model = line.split(":", 1)[1].strip()
+    except (OSError, subprocess.CalledProcessError):
+        pass
+    mem = None
+    with open("/proc/meminfo") as f:
+        for line in f:
+            if line.startswith("MemTotal:"):
+                mem = round(int(line.split()[1]) / 1024**2, 1)
+    return {
+        "cpu": model,
+        "cores": os.cpu_count(),
+        "memory_gib": mem,
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+    }
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="a fast smoke run")
+    parser.add_argument("--items", type=int, nargs="+", default=[1, 2, 3, 4, 5])
+    parser.add_argument("--rounds", type=int, help="interleaved rounds per ratio")
+    parser.add_argument("--peer-threads", type=int, default=1)
+    parser.add_argument("--out", help="output path prefix (.json and .txt added)")
+    parser.add_argument("--peer-worker", nargs=4, help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.peer_worker:
+        env_name, frames, seed, threads = args.peer_worker
+        peer_worker(env_name, int(frames), int(seed), int(threads))
+        return {}
+    plan = QUICK if args.quick else FULL
+    if args.rounds:
+        plan.rounds = args.rounds
+    if args.out:
+        out = Path(args.out)
+    elif args.quick:
+        out = Path(tempfile.mkdtemp(prefix="bench_speed_")) / "bench_speed_quick"
+    else:
+        out = ROOT / "docs" / "results" / "bench_speed"
+
+    sys.path.insert(0, str(ROOT))
+    from torchrl_surprise.envs import make_minigrid_env, make_mujoco_env
+
+    targets: list[Target] = []
+    details: dict = {"plan": asdict(plan), "load_start": load()}
+    rss: dict[str, int] = {}
+    started = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp_dir:
+        tmp = Path(tmp_dir)
+
+        if 1 in args.items or 5 in args.items:
+            print("[1] A2C recipe (defaults): bonus vs none, frames/s", flush=True)
+            names = ["none", *BONUSES]
+            samples = interleave(
+                {
+                    b: lambda b=b: a2c_recipe(b, None, plan.a2c_frames, tmp)
+                    for b in names
+                },
+                plan.rounds,
+            )
+            details["a2c_bonus"] = {
+                b: {"frames_per_s": [s.value for s in v], "load1": [s.load1 for s in v]}
+                for b, v in samples.items()
+            }
+            for b in BONUSES:
+                targets.append(
+                    Target(
+                        1,
+                        f"A2C {b} / none (frames/s)",
+                        paired_ratio(samples, b, "none"),
+                        0.90,
+                        note=f"{med(samples[b]):,.0f} / {med(samples['none']):,.0f}",
+                    )
+                )
+            rss["a2c"] = max(
+                s.extra["maxrss_bytes"] for v in samples.values() for s in v
+            )
+
+        if 2 in args.items or 5 in args.items:
+            print("[2] DDPG recipe (Hopper-v5) vs bare eager update, updates/s")
+            samples = interleave(
+                {
+                    "bare eager": lambda: bare_ddpg(plan.bare_updates),
+                    "none": lambda: ddpg_recipe("none", plan.ddpg_frames, tmp),
+                    "vae": lambda: ddpg_recipe("vae", plan.ddpg_frames, tmp),
+                },
+                plan.rounds,
+            )
+            details["ddpg"] = {
+                k: {
+                    "updates_per_s": [s.value for s in v],
+                    "load1": [s.load1 for s in v],
+                }
+                for k, v in samples.items()
+            }
+            bare, none = med(samples["bare eager"]), med(samples["none"])
+            ratio = paired_ratio(samples, "none", "bare eager")
+            targets.append(
+                Target(
+                    2,
+                    "DDPG recipe none / bare eager (updates/s)",
+                    ratio,
+                    1.0,
+                    note=f"{none:,.0f} / {bare:,.0f}; stretch 1.5x",
+                )
+            )
+            targets.append(
+                Target(
+                    2,
+                    "DDPG recipe vae / none (updates/s)",
+                    paired_ratio(samples, "vae", "none"),
+                    0.85,
+                    note=f"{med(samples['vae']):,.0f} / {none:,.0f}",
+                )
+            )
+            rss["ddpg"] = max(
+                s.extra["maxrss_bytes"]
+                for k, v in samples.items()
+                if k != "bare eager"
+                for s in v
+            )
+
+        if 3 in args.items:
+            print("[3] A2C recipe (bonus=none) vs torch-ac 1.4.0, frames/s")
+            if importlib.util.find_spec("torch_ac") is None:
+                msg = (
+                    "skipped: torch-ac is not installed "
+                    '(pip install -e ".[bench]" installs torch-ac==1.4.0)'
+                )
+                print(f"    {msg}")
+                for env_name in PEER_ENVS:
+                    targets.append(
+                        Target(
+                            3, f"A2C ours / torch-ac, {env_name}", None, 1.5, note=msg
+                        )
+                    )
+            else:
+                details["peer"] = {"threads": args.peer_threads}
+                for env_name in PEER_ENVS:
+                    samples = interleave(
+                        {
+                            "ours": lambda e=env_name: a2c_recipe(
+                                "none", e, plan.peer_frames, tmp
+                            ),
+                            "torch-ac": lambda e=env_name: peer(
+                                e, plan.peer_frames, args.peer_threads
+                            ),
+                        },
+                        plan.rounds,
+                    )
+                    details["peer"][env_name] = {
+                        k: {
+                            "frames_per_s": [s.value for s in v],
+                            "load1": [s.load1 for s in v],
+                        }
+                        for k, v in samples.items()
+                    }
+                    targets.append(
+                        Target(
+                            3,
+                            f"A2C ours / torch-ac, {env_name.removeprefix('MiniGrid-')}",
+                            paired_ratio(samples, "ours", "torch-ac"),
+                            1.5,
+                            note=f"{med(samples['ours']):,.0f} / "
+                            f"{med(samples['torch-ac']):,.0f}",
+                        )
+                    )
+
+        if 4 in args.items:
+            print("[4] env pipeline vs a raw gymnasium loop, steps/s")
+            details["envs"] = {}
+            pipelines = [
+                (e, A2C_NUM_ENVS, make_minigrid_env) for e in MINIGRID_PIPELINE_ENVS
+            ] + [(e, DDPG_NUM_ENVS, make_mujoco_env) for e in MUJOCO_PIPELINE_ENVS]
+            torch.set_num_threads(1)
+            for env_name, n, factory in pipelines:
+                ours = f"{factory.__name__}(num_envs={n})"
+                samples = interleave(
+                    {
+                        ours: lambda f=factory, e=env_name, n=n: ours_env(
+                            lambda: f(e, num_envs=n, seed=0), plan.env_steps
+                        ),
+                        "raw gymnasium": lambda e=env_name: raw_env(e, plan.env_steps),
+                    },
+                    plan.rounds,
+                )
+                details["envs"][env_name] = {
+                    k: {
+                        "steps_per_s": [s.value for s in v],
+                        "load1": [s.load1 for s in v],
+                    }
+                    for k, v in samples.items()
+                }
+                targets.append(
+                    Target(
+                        4,
+                        f"{ours} / raw, {env_name.removeprefix('MiniGrid-')}",
+                        paired_ratio(samples, ours, "raw gymnasium"),
+                        0.9,
+                        note=f"{med(samples[ours]):,.0f} / "
+                        f"{med(samples['raw gymnasium']):,.0f} steps/s",
+                    )
+                )
+
+        if 5 in args.items:
+            print("[5] memory")
+            mem: dict = {"peak_rss_bytes": rss}
+            for env_name in ("HalfCheetah-v5", "Hopper-v5"):
+                per = ddpg_buffer_bytes_per_transition(env_name)
+                mem[f"ddpg_buffer_bytes_per_transition_{env_name}"] = per
+            per = max(v for k, v in mem.items() if k.startswith("ddpg_buffer"))
+            buffer_1m = per * 1_000_000
+            mem["ddpg_buffer_1M_bytes"] = buffer_1m
+            details["memory"] = mem
+            ddpg_run = rss["ddpg"] + buffer_1m
+            targets.append(
+                Target(
+                    5,
+                    "2 DDPG runs (1M buffer) / 24 GiB",
+                    2 * ddpg_run / MEMORY_LIMIT,
+                    1.0,
+                    higher_is_better=False,
+                    note=f"2 x ({rss['ddpg'] / GIB:.2f} GiB peak + "
+                    f"{buffer_1m / GIB:.2f} GiB buffer, {per:.0f} B/transition)",
+                )
+            )
+            targets.append(
+                Target(
+                    5,
+                    "2 A2C runs / 24 GiB",
+                    2 * rss["a2c"] / MEMORY_LIMIT,
+                    1.0,
+                    higher_is_better=False,
+                    note=f"2 x {rss['a2c'] / GIB:.2f} GiB peak",
+                )
+            )
+
+    details["load_end"] = load()
+    details["minutes"] = round((time.perf_counter() - started) / 60, 1)
+    text = render(targets, details, plan)
+    print(text)
+    result = {
+        "machine": machine(),
+        "quick": args.quick,
+        "targets": [
+            {
+                **asdict(t),
+                "met": t.met,
+                "goal_kind": ">=" if t.higher_is_better else "<=",
+            }
+            for t in targets
+        ],
+        "details": details,
+    }
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.with_suffix(".json").write_text(json.dumps(result, indent=2) + "\n")
+    out.with_suffix(".txt").write_text(text + "\n")
+    print(f"wrote {out.with_suffix('.json')} and {out.with_suffix('.txt')}")
+    return result
+
+
+def render(targets: list[Target], details: dict, plan: Plan) -> str:
+    m = machine()
+    lines = [
+        f"{m['cpu']}, {m['cores']} cores, {m['memory_gib']} GiB; torch {m['torch']}; "
+        f"{plan.rounds} interleaved rounds, median of per-round ratios",
+        f"load average {details['load_start']} at start, {details['load_end']} at end "
+        f"({details['minutes']} min)",
+        "",
+        f"{'#':<2} {'target':<52} {'measured':>9} {'goal':>7}  {'met?':<5} details",
+        "-" * 110,
+    ]
+    for t in targets:
+        measured = "-" if t.measured is None else f"{t.measured:.2f}x"
+        goal = f"{'>=' if t.higher_is_better else '<='}{t.goal:.2f}"
+        met = {True: "yes", False: "NO", None: "skip"}[t.met]
+        lines.append(
+            f"{t.item:<2} {t.name:<52} {measured:>9} {goal:>7}  {met:<5} {t.note}"
+        )
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    main()
