@@ -31,7 +31,6 @@ uninterrupted run would have). Ctrl-C or SIGTERM saves a checkpoint and exits.
 
 from __future__ import annotations
 
-import sys
 import time
 from pathlib import Path
 
@@ -67,7 +66,6 @@ from torchrl_surprise.experiments import (
     get_run_logger,
     plot_scalar_logs,
     prepare_run,
-    resume_command,
 )
 
 # Sweep launchers pickle this script's task function for their worker processes,
@@ -262,18 +260,10 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
             if logger is not None:
                 logger.log_scalar("eval/episode_return", ret, step=frames)
                 logger.log_scalar("eval/success_rate", success, step=frames)
-        if frames >= progress.next_ckpt:
-            progress.next_ckpt += cfg.checkpoint.interval_frames
-            checkpointer.save()
-        if stop:
-            checkpointer.save()
-            pbar.close()
-            collector.shutdown()
-            print(
-                f"{stop.name}: stopped at {frames} frames, checkpoint saved. "
-                f"Resume with: {resume_command(run_dir)}"
-            )
-            sys.exit(128 + stop.received)
+        checkpointer.save_every(cfg.checkpoint.interval_frames)
+        stop.save_and_exit(
+            checkpointer, frames, run_dir, pbar.close, collector.shutdown
+        )
     stop.restore()
     pbar.close()
     checkpointer.save()

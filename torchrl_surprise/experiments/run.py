@@ -8,6 +8,7 @@ import importlib
 import os
 import random
 import signal
+import sys
 import types
 from collections import deque
 from collections.abc import Mapping, Sequence
@@ -335,6 +336,14 @@ class Checkpointer:
             state["frames"] = progress.frames
         save_checkpoint(self.path, state)
 
+    def save_every(self, interval_frames: int) -> None:
+        """Saves when the run's :class:`Progress` has passed ``next_ckpt`` frames,
+        and moves ``next_ckpt`` on by ``interval_frames``."""
+        progress = self.components["progress"]
+        if progress.frames >= progress.next_ckpt:
+            progress.next_ckpt += interval_frames
+            self.save()
+
     def load(self, state: Mapping[str, Any]) -> None:
         missing = [name for name in self.components if name not in state]
         if missing:
@@ -378,6 +387,22 @@ class StopSignal:
     def name(self) -> str:
         return signal.Signals(self.received).name if self.received else ""
 
+    def save_and_exit(
+        self, checkpointer: Checkpointer, frames: int, run_dir, *closers
+    ) -> None:
+        """If a signal came: save, run ``closers`` (progress bar, collector), print
+        one line on how to resume, and exit with status ``128 + signal``."""
+        if not self:
+            return
+        checkpointer.save()
+        for close in closers:
+            close()
+        print(
+            f"{self.name}: stopped at {frames} frames, checkpoint saved. "
+            f"Resume with: {resume_command(run_dir)}"
+        )
+        sys.exit(128 + self.received)
+
     def restore(self) -> None:
         """Puts back the handlers that were installed before."""
         for sig, handler in self._previous.items():
@@ -386,8 +411,6 @@ class StopSignal:
 
 def resume_command(run_dir: str | os.PathLike) -> str:
     """The command line that resumes the current Hydra run in ``run_dir``."""
-    import sys
-
     try:
         from hydra.core.hydra_config import HydraConfig
 
