@@ -237,8 +237,8 @@ def test_runs_without_a_logger(tmp_path):
 
 @pytest.mark.parametrize(
     "launcher, seeds",
-    # submitit_local starts a process per job: 2 jobs (one seed) keep it short.
-    [("local", [0, 1]), pytest.param("submitit_local", [0], marks=pytest.mark.slow)],
+    # submitit_local is tested on the A2C recipe (tests/test_recipe_a2c.py).
+    [("local", [0, 1])],
 )
 def test_sweep_runs_each_job_once_and_a_rerun_starts_no_new_work(
     tmp_path, launcher, seeds
