@@ -51,11 +51,11 @@ DDPG_STAGES = [
     ("for data in collector:", "collection (collector: env + actor)"),
     ("frames += data.numel()", "bookkeeping (stats, obs statistics)"),
     ("buffer.extend(", "replay buffer extend"),
-    ("sample = buffer.sample(", "replay buffer sample"),
+    ("sample = sample_uniform(", "replay buffer sample"),
     ("if bonus_at_sample:", "bonus on the sample"),
-    ("loss_value, _ = loss_module.loss_value(", "critic loss + backward + Adam"),
-    ("loss_actor, _ = loss_module.loss_actor(", "actor loss + backward + Adam"),
-    ("target_updater.step()", "soft target update"),
+    ("loss_value = ddpg.critic_loss(", "critic loss + backward + Adam"),
+    ("loss_actor = ddpg.actor_loss(", "actor loss + backward + Adam"),
+    ("ddpg.update_target()", "soft target update"),
     ("updates += 1", "per-update scalars"),
     ("if vae_loss is not None and updates", "VAE step"),
     ("pbar.update(", "logging, eval, checkpoint"),
@@ -92,7 +92,7 @@ KINDS = ("env", "torch ops", "tensordict/torchrl", "other")
 
 def kind_of(frame: str) -> str:
     path = frame[frame.rfind("(") + 1 :]
-    if any(s in path for s in ("gymnasium/", "minigrid/", "mujoco/")):
+    if any(s in path for s in ("/gymnasium/", "/minigrid/", "/mujoco/")):
         return "env"
     if any(s in path for s in ("tensordict/", "torchrl/")):
         return "tensordict/torchrl"

@@ -57,6 +57,7 @@ from utils import (
     make_env,
     make_replay_buffer,
     replay_keys,
+    sample_uniform,
 )
 
 from torchrl_surprise.experiments import (
@@ -234,7 +235,7 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
 
         if frames >= cfg.collector.init_random_frames:
             for _ in range(updates_per_batch):
-                sample = buffer.sample(cfg.optim.batch_size)
+                sample = sample_uniform(buffer, cfg.optim.batch_size)
                 if bonus_at_sample:
                     with torch.no_grad():
                         bonus_transform.set_frames(frames)
@@ -258,7 +259,9 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
                 pending.add("train/reward", sample["next", "reward"])
 
                 if vae_loss is not None and updates % cfg.intrinsic.update_every == 0:
-                    vae_batch = obs_norm(buffer.sample(cfg.intrinsic.batch_size))
+                    vae_batch = obs_norm(
+                        sample_uniform(buffer, cfg.intrinsic.batch_size)
+                    )
                     vae_td = vae_loss(vae_batch)
                     vae_total = vae_td["loss_reconstruction"] + vae_td["loss_kl"]
                     vae_optim.zero_grad()

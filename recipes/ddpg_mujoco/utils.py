@@ -404,6 +404,18 @@ def make_replay_buffer(size: int) -> TensorDictReplayBuffer:
     return TensorDictReplayBuffer(storage=LazyTensorStorage(int(size)))
 
 
+def sample_uniform(buffer: TensorDictReplayBuffer, batch_size: int) -> TensorDictBase:
+    """A uniform minibatch, with replacement, read straight from the buffer's storage.
+
+    The indices are drawn as TorchRL's ``RandomSampler`` draws them (the same
+    ``torch.randint`` call on the global generator, so the same transitions);
+    ``buffer.sample`` adds its writer, sampler and transform plumbing and an
+    ``"index"`` entry, which cost more than the indexing itself.
+    """
+    index = torch.randint(0, len(buffer), (batch_size,))
+    return buffer.storage.get(index)
+
+
 class ScalarMeans:
     """Per-update scalars gathered between two log lines, logged as their means.
 
