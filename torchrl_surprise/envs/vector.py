@@ -22,7 +22,8 @@ from typing import Any
 
 import cloudpickle
 import gymnasium as gym
-from tensordict import TensorDictBase
+import torch
+from tensordict import TensorDict, TensorDictBase
 from torchrl.envs import GymEnv, GymWrapper
 
 __all__ = [
@@ -132,16 +133,86 @@ class RuntimeStateMixin:
 class VectorGymWrapper(RuntimeStateMixin, GymWrapper):
     """``GymWrapper`` over a gymnasium vector env, usable inside batched envs.
 
-    For a vector env, ``GymWrapper._step`` returns done flags of shape ``[B]``; the
-    public ``step`` reshapes them to the spec's ``[B, 1]``, but ``SerialEnv`` and
-    ``ParallelEnv`` call the private ``_step`` of their sub-envs and then fail on
-    the shape mismatch (TorchRL 0.14.1). Reshaping here makes both paths agree.
+    Its step writes the same entries as ``GymWrapper._step``, with the done flags
+    already of the spec's shape ``[B, 1]`` (``GymWrapper._step`` returns ``[B]``;
+    the public ``step`` reshapes them, but ``SerialEnv`` and ``ParallelEnv`` call
+    the private ``_step`` of their sub-envs and then fail on the mismatch, TorchRL
+    0.14.1).
+
+    For a vector env with one action, no info reader and no frame skip (what
+    :func:`~torchrl_surprise.envs.make_minigrid_env` and
+    :func:`~torchrl_surprise.envs.make_mujoco_env` build), the step is a direct
+    path: the action goes to gymnasium as a numpy view, the outputs come back as
+    tensors over gymnasium's arrays (fresh ones each step: the vector env copies
+    its outputs) cast to the specs' dtypes. ``GymWrapper._step`` converts each
+    entry through its spec, reads the done flags through generic helpers and
+    copies the result to the device, a per-step cost comparable to a MiniGrid step
+    itself (docs/speed.rst). Anything else takes ``GymWrapper._step``.
     """
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        direct = self.__dict__.get("_direct_step")
+        if direct is None:
+            direct = self.__dict__["_direct_step"] = self._make_direct_step()
+        if direct is not None:
+            return direct(tensordict)
         next_tensordict = super()._step(tensordict)
         self._complete_done(self.full_done_spec, next_tensordict)
         return next_tensordict
+
+    def _make_direct_step(self):
+        """The direct step, or ``None`` where ``GymWrapper._step`` is needed."""
+        env = self._env
+        if not (
+            isinstance(env, gym.vector.VectorEnv)
+            and getattr(env, "copy", False)
+            and len(self.action_keys) == 1
+            and not self.info_dict_reader
+            and self.wrapper_frame_skip == 1
+            and len(self.batch_size) == 1
+        ):
+            return None
+        obs_dtypes = {
+            key: spec.dtype
+            for key, spec in self.observation_spec.items(True, True)
+            if isinstance(key, str)
+        }
+        if isinstance(env.single_observation_space, gym.spaces.Dict):
+            space_keys = list(env.single_observation_space.spaces)
+            if set(space_keys) != set(obs_dtypes) or "state" in space_keys:
+                return None  # renamed or non-tensor entries: GymWrapper's reading
+            single_key = None
+        elif len(obs_dtypes) == 1:
+            single_key = next(iter(obs_dtypes))
+        else:
+            return None
+        action_key, reward_key = self.action_key, self.reward_key
+        reward_dtype = self.reward_spec.dtype
+        done_dtype = self.full_done_spec["done"].dtype
+        batch_size, device = self.batch_size, self.device
+        shape = (batch_size[0], 1)
+        to_device = device is not None and device != torch.device("cpu")
+
+        def step(tensordict: TensorDictBase) -> TensorDictBase:
+            action = tensordict.get(action_key).numpy(force=True)
+            obs, reward, terminated, truncated, _ = env.step(action)
+            if single_key is None:
+                out = {
+                    key: torch.as_tensor(value, dtype=obs_dtypes[key])
+                    for key, value in obs.items()
+                }
+            else:
+                out = {single_key: torch.as_tensor(obs, dtype=obs_dtypes[single_key])}
+            terminated = torch.as_tensor(terminated, dtype=done_dtype).view(shape)
+            truncated = torch.as_tensor(truncated, dtype=done_dtype).view(shape)
+            out[reward_key] = torch.as_tensor(reward, dtype=reward_dtype).view(shape)
+            out["truncated"] = truncated
+            out["done"] = terminated | truncated
+            out["terminated"] = terminated
+            next_tensordict = TensorDict(out, batch_size=batch_size)
+            return next_tensordict.to(device) if to_device else next_tensordict
+
+        return step
 
     @property
     def gym_env(self) -> gym.Env:
