@@ -251,13 +251,15 @@ def test_from_data_regenerates_identical_tables(sweep, tmp_path):
         assert (out / name).stat().st_size > 0 and (tmp_path / name).stat().st_size > 0
 
 
-def test_a_budget_reads_each_run_at_its_last_point_before_it(sweep, tmp_path):
+def test_a_run_short_of_the_budget_is_left_out_of_final_scores(sweep, tmp_path):
     argv = [str(sweep["root"] / "runs" / "cheetah"), "--out", str(tmp_path)]
     assert main([*argv, "--budget", "8500", "--reps", str(REPS)]) == 0
     row = summary_row(tmp_path, CHEETAH, "cheetah_vae")
     assert row["budget"] == 8500 and row["seeds_short_of_budget"] == 1
-    # Seed 0 at 8000 frames (800), seed 1 at its last point, 6000 (1200).
-    assert row["train_return_mean"] == pytest.approx(1000.0)
+    # Seed 0 at its last point before the budget, 8000 frames (800); seed 1
+    # stopped at 6000 frames, more than a logging period short: left out.
+    assert row["train_return_mean"] == pytest.approx(800.0)
+    assert row["train_return_seeds"] == 1
 
 
 def test_extract_keeps_at_most_max_points_and_the_last(sweep):

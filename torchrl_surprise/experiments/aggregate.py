@@ -415,12 +415,20 @@ def _budgets(data: pd.DataFrame, budget: int | None) -> dict[str, int]:
     return budgets
 
 
+def _median_gap(frames: pd.Series) -> float:
+    steps = np.unique(frames.to_numpy())
+    return float(np.median(np.diff(steps))) if len(steps) > 1 else 0.0
+
+
 def final_scores(
     data: pd.DataFrame,
     oracle: Mapping[str, float] | None = None,
     budget: int | None = None,
 ) -> pd.DataFrame:
     """Each run's value of each metric at the last logged step at or before the budget.
+
+    Runs that stopped more than one logging period short of the budget are left
+    out (they have no value at the budget).
 
     Args:
         data: the table of :func:`extract_run_data` (raw values).
@@ -445,6 +453,12 @@ def final_scores(
         data = normalize_returns(data, oracle)
     budgets = _budgets(data, budget)
     data = data.assign(budget=data["task"].map(budgets))
+    # A run that stopped short of the budget (by more than one logging period)
+    # has no value at the budget: it is left out, not read at an earlier frame.
+    reached = data.groupby(_RUN_KEYS)["frames"].agg(["max", _median_gap])
+    reached = reached["max"] + reached["_median_gap"]
+    run_index = pd.MultiIndex.from_frame(data[_RUN_KEYS])
+    data = data[reached.reindex(run_index).to_numpy() >= data["budget"].to_numpy()]
     data = data[data["frames"] <= data["budget"]]
     last = data.groupby([*_RUN_KEYS, "metric"])["frames"].idxmax()
     columns = [*_RUN_KEYS, "metric", "budget", "frames", "value"]
@@ -950,9 +964,10 @@ def status_text(summary: pd.DataFrame, meta: pd.DataFrame | None) -> str:
     """One paragraph (reStructuredText) on what the tables cover: seeds per
     setting and the runs that had not reached their budget when aggregated."""
     counts = ", ".join(
-        f"{row['setting']} {int(row['seeds'])}" for _, row in summary.iterrows()
+        f"{row['setting']} {int(row.get('train_return_seeds', row['seeds']))}"
+        for _, row in summary.iterrows()
     )
-    text = f"Seeds per setting: {counts}."
+    text = f"Seeds that reached the budget, per setting: {counts}."
     if meta is not None and "finished" in meta and not meta["finished"].all():
         late = meta[~meta["finished"].astype(bool)]
         runs = ", ".join(
@@ -961,8 +976,9 @@ def status_text(summary: pd.DataFrame, meta: pd.DataFrame | None) -> str:
             for r in late.itertuples()
         )
         text += (
-            f" Unfinished when aggregated: {runs}; these enter the tables at the "
-            "frames they reached, and rerunning the sweep command completes them."
+            f" Unfinished when aggregated: {runs}; final scores leave them out "
+            "(curves show them up to where they got), and rerunning the sweep "
+            "command completes them."
         )
     return text + "\n"
 
@@ -985,7 +1001,8 @@ def report_table(summary: pd.DataFrame) -> pd.DataFrame:
         out = {
             "task": row["task"].removeprefix("MiniGrid-"),
             "setting": row["setting"],
-            "seeds": int(row["seeds"]),
+            # the runs that reached the budget (those in the final scores)
+            "seeds": int(row.get("train_return_seeds", row["seeds"])),
             "frames": f"{int(row['budget']) / 1000:.0f}k",
             ret: _interval(row, "train_return"),
             "success": _interval(row, "train_success"),
