@@ -15,9 +15,8 @@ For every collected batch of ``frames_per_batch`` transitions, in this order:
       normalised with the current statistics and its bonus is recomputed with the
       current VAE: ``r = r_ext + coef * normalize(KL(q(z|s') || N(0, I)))``, so the
       bonus of an old transition is never stale;
-   b. one critic step (TorchRL's DDPGLoss math, TD(0) target with the target
-      critic), one actor step, then a Polyak update of the target critic
-      (SoftUpdate's), computed on the sample's tensors by ``utils.DDPGUpdate``;
+   b. one critic step (TorchRL's DDPGLoss, TD(0) target with the target critic),
+      one actor step, then a Polyak update of the target critic (SoftUpdate);
    c. every ``intrinsic.update_every`` updates, one VAE step (VAELoss) on its own
       replay sample of normalised next observations.
 
@@ -57,7 +56,6 @@ from utils import (
     make_env,
     make_replay_buffer,
     replay_keys,
-    sample_uniform,
 )
 
 from torchrl_surprise.experiments import (
@@ -126,26 +124,20 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
     eval_env = make_env(cfg, cfg.eval.num_envs, seed=cfg.seed + EVAL_SEED_OFFSET)
     eval_env.eval_seed = cfg.seed + EVAL_SEED_OFFSET
     obs_dim = env.observation_spec[OBS_KEY].shape[-1]
-    actor, policy, noise, loss_module, target_updater, ddpg = make_ddpg(cfg, env)
-    # fused: the same Adam update in one kernel per step instead of a Python loop
-    # over the parameters
+    actor, policy, noise, loss_module, target_updater = make_ddpg(cfg, env)
     actor_optim = torch.optim.Adam(
         loss_module.actor_network_params.flatten_keys().values(),
         lr=cfg.optim.actor_lr,
-        fused=True,
     )
     critic_optim = torch.optim.Adam(
         loss_module.value_network_params.flatten_keys().values(),
         lr=cfg.optim.critic_lr,
-        fused=True,
     )
     obs_norm = ObservationNormalizer(obs_dim, clip=cfg.obs_norm.clip)
     bonus_transform, vae_loss = make_bonus(cfg, obs_dim)
     vae_optim = None
     if vae_loss is not None:
-        vae_optim = torch.optim.Adam(
-            vae_loss.parameters(), lr=cfg.intrinsic.lr, fused=True
-        )
+        vae_optim = torch.optim.Adam(vae_loss.parameters(), lr=cfg.intrinsic.lr)
     bonus_at_sample = bonus_transform is not None and cfg.intrinsic.bonus_at == "sample"
     bonus_at_collection = (
         bonus_transform is not None and cfg.intrinsic.bonus_at == "collection"
@@ -235,33 +227,28 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
 
         if frames >= cfg.collector.init_random_frames:
             for _ in range(updates_per_batch):
-                sample = sample_uniform(buffer, cfg.optim.batch_size)
+                sample = buffer.sample(cfg.optim.batch_size)
                 if bonus_at_sample:
                     with torch.no_grad():
                         bonus_transform.set_frames(frames)
                         sample = bonus_transform(obs_norm(sample))
                     add_bonus_scalars(sample["next"])
-                # DDPGLoss's loss_value / loss_actor and SoftUpdate's math on
-                # the loss module's parameters, without its per-call TensorDict
-                # plumbing (utils.DDPGUpdate).
-                loss_value = ddpg.critic_loss(sample)
+                loss_value, _ = loss_module.loss_value(sample)
                 critic_optim.zero_grad()
                 loss_value.backward()
                 critic_optim.step()
-                loss_actor = ddpg.actor_loss(sample)
+                loss_actor, _ = loss_module.loss_actor(sample)
                 actor_optim.zero_grad()
                 loss_actor.backward()
                 actor_optim.step()
-                ddpg.update_target()
+                target_updater.step()
                 updates += 1
                 pending.add("train/loss_value", loss_value)
                 pending.add("train/loss_actor", loss_actor)
                 pending.add("train/reward", sample["next", "reward"])
 
                 if vae_loss is not None and updates % cfg.intrinsic.update_every == 0:
-                    vae_batch = obs_norm(
-                        sample_uniform(buffer, cfg.intrinsic.batch_size)
-                    )
+                    vae_batch = obs_norm(buffer.sample(cfg.intrinsic.batch_size))
                     vae_td = vae_loss(vae_batch)
                     vae_total = vae_td["loss_reconstruction"] + vae_td["loss_kl"]
                     vae_optim.zero_grad()

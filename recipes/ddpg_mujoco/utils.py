@@ -23,7 +23,6 @@ from torchrl.objectives import DDPGLoss, SoftUpdate
 from torchrl_surprise import StateVAE, VAELoss, VAESurpriseTransform
 from torchrl_surprise.envs import make_mujoco_env
 from torchrl_surprise.experiments import RESUME_MODES, ResumableCollector
-from torchrl_surprise.modules.vae import OneDNNLinear
 from torchrl_surprise.transforms import NORMALIZATIONS, make_coef_schedule
 
 BONUSES = ("none", "vae")
@@ -201,36 +200,34 @@ class ObservationNormalizer(Transform):
 def make_ddpg(cfg, env):
     """Actor (MLP + tanh to the action bounds), critic Q(s, a), loss, target updater.
 
-    The MLPs' linear layers are :class:`~torchrl_surprise.modules.vae.OneDNNLinear`
-    (``nn.Linear``'s parameters and initialisation; its 256x256 products run on
-    oneDNN, faster than MKL on one CPU thread).
-
-    Returns ``(actor, exploration_policy, noise_module, loss, target_updater,
-    update)``, ``update`` the :class:`DDPGUpdate` the training loop calls.
+    Returns ``(actor, exploration_policy, noise_module, loss, target_updater)``.
     """
     action_spec = env.action_spec_unbatched
     obs_dim = env.observation_spec[OBS_KEY].shape[-1]
     act_dim = action_spec.shape[-1]
     hidden = list(cfg.network.hidden_sizes)
-    actor_net = MLP(
-        in_features=obs_dim,
-        out_features=act_dim,
-        num_cells=hidden,
-        activation_class=torch.nn.ReLU,
-        layer_class=OneDNNLinear,
-    )
     actor = TensorDictSequential(
-        TensorDictModule(actor_net, in_keys=[OBS_KEY], out_keys=["param"]),
+        TensorDictModule(
+            MLP(
+                in_features=obs_dim,
+                out_features=act_dim,
+                num_cells=hidden,
+                activation_class=torch.nn.ReLU,
+            ),
+            in_keys=[OBS_KEY],
+            out_keys=["param"],
+        ),
         TanhModule(in_keys=["param"], out_keys=["action"], spec=action_spec),
     )
-    critic_net = MLP(
-        in_features=obs_dim + act_dim,
-        out_features=1,
-        num_cells=hidden,
-        activation_class=torch.nn.ReLU,
-        layer_class=OneDNNLinear,
+    critic = ValueOperator(
+        MLP(
+            in_features=obs_dim + act_dim,
+            out_features=1,
+            num_cells=hidden,
+            activation_class=torch.nn.ReLU,
+        ),
+        in_keys=[OBS_KEY, "action"],
     )
-    critic = ValueOperator(critic_net, in_keys=[OBS_KEY, "action"])
     ecfg = cfg.exploration
     if ecfg.noise == "gaussian":
         # Constant sigma: a + N(0, std^2) projected onto the bounds; std is
@@ -264,92 +261,7 @@ def make_ddpg(cfg, env):
     )
     loss.make_value_estimator(gamma=cfg.optim.gamma)
     target_updater = SoftUpdate(loss, tau=cfg.optim.tau)
-    update = DDPGUpdate(
-        actor_net,
-        critic_net,
-        loss,
-        action_spec.space.low.float(),
-        action_spec.space.high.float(),
-        gamma=cfg.optim.gamma,
-        tau=cfg.optim.tau,
-    )
-    return actor, policy, noise, loss, target_updater, update
-
-
-class DDPGUpdate:
-    """DDPG's losses and soft target update on plain tensors, with DDPGLoss's parameters.
-
-    The same math as TorchRL's ``DDPGLoss.loss_value`` and ``loss_actor`` (TD(0)
-    target, ``l2`` loss, mean reduction, ``delay_actor=False``) and ``SoftUpdate``:
-
-    * :meth:`critic_loss`: ``mean((Q(s, a) - y)^2)`` with
-      ``y = r + gamma * (1 - terminated) * Q_target(s', pi(s'))`` (no gradient);
-    * :meth:`actor_loss`: ``-mean(Q(s, pi(s)))`` through the critic with its
-      parameters detached (no gradient of the critic's weights is computed);
-    * :meth:`update_target`: ``target <- target + tau * (critic - target)``.
-
-    Why not call ``DDPGLoss`` itself: per call it selects and detaches copies of
-    the sample, swaps parameters into the modules (four times per update) and
-    builds the estimator's TensorDicts, which cost a fifth of an update on one
-    CPU thread (docs/speed.rst). The parameters are the loss module's own (its
-    modules hold them, the target critic's are its ``target_value_network_params``),
-    so the optimisers, the ``SoftUpdate`` state and checkpoints are unchanged.
-
-    Args:
-        actor_net: the actor's network, ``obs -> pre-tanh action``.
-        critic_net: the critic's network, ``(obs, action) -> Q``.
-        loss: the ``DDPGLoss`` built on them (it holds the target critic).
-        action_low, action_high: the action bounds (``TanhModule``'s mapping).
-        gamma: discount.
-        tau: soft update rate.
-    """
-
-    def __init__(
-        self, actor_net, critic_net, loss, action_low, action_high, gamma, tau
-    ):
-        self.actor_net = actor_net
-        self.critic_net = critic_net
-        self.low, self.high = action_low, action_high
-        self.gamma = float(gamma)
-        self.tau = float(tau)
-        names = dict(critic_net.named_parameters())
-        # ValueOperator keeps the network as its ``module``: strip that prefix.
-        self.target_params = {
-            key.split(".", 1)[1]: value
-            for key, value in loss.target_value_network_params.flatten_keys(".").items()
-        }
-        if set(self.target_params) != set(names):
-            raise RuntimeError(
-                f"target critic {sorted(self.target_params)} != critic {sorted(names)}"
-            )
-        self._sources = [names[k] for k in self.target_params]
-        self._targets = list(self.target_params.values())
-
-    def act(self, obs: torch.Tensor) -> torch.Tensor:
-        """The actor's action, ``TanhModule``'s ``low + (high - low) * (tanh + 1) / 2``."""
-        return self.low + (self.high - self.low) * (self.actor_net(obs).tanh() + 1) / 2
-
-    def critic_loss(self, sample: TensorDictBase) -> torch.Tensor:
-        next_obs = sample["next", OBS_KEY]
-        with torch.no_grad():
-            next_q = torch.func.functional_call(
-                self.critic_net, self.target_params, (next_obs, self.act(next_obs))
-            )
-            not_terminated = (~sample["next", "terminated"]).int()
-            target = sample["next", "reward"] + self.gamma * not_terminated * next_q
-        return (
-            (self.critic_net(sample[OBS_KEY], sample["action"]) - target).pow(2).mean()
-        )
-
-    def actor_loss(self, sample: TensorDictBase) -> torch.Tensor:
-        obs = sample[OBS_KEY]
-        detached = {n: p.detach() for n, p in self.critic_net.named_parameters()}
-        q = torch.func.functional_call(self.critic_net, detached, (obs, self.act(obs)))
-        return -q.mean()
-
-    @torch.no_grad()
-    def update_target(self) -> None:
-        torch._foreach_lerp_(self._targets, self._sources, self.tau)
+    return actor, policy, noise, loss, target_updater
 
 
 def make_bonus(cfg, obs_dim: int):
@@ -402,18 +314,6 @@ def make_replay_buffer(size: int) -> TensorDictReplayBuffer:
     filled or not), the write cursor and the sampler: a checkpoint saves it whole.
     """
     return TensorDictReplayBuffer(storage=LazyTensorStorage(int(size)))
-
-
-def sample_uniform(buffer: TensorDictReplayBuffer, batch_size: int) -> TensorDictBase:
-    """A uniform minibatch, with replacement, read straight from the buffer's storage.
-
-    The indices are drawn as TorchRL's ``RandomSampler`` draws them (the same
-    ``torch.randint`` call on the global generator, so the same transitions);
-    ``buffer.sample`` adds its writer, sampler and transform plumbing and an
-    ``"index"`` entry, which cost more than the indexing itself.
-    """
-    index = torch.randint(0, len(buffer), (batch_size,))
-    return buffer.storage.get(index)
 
 
 class ScalarMeans:
