@@ -8,7 +8,8 @@ its innermost Python frame, to a kind of work:
 
 * ``env``: gymnasium, MiniGrid or MuJoCo code (the simulation itself);
 * ``torch ops``: torch operators (``torch.nn`` layers and functional, autograd,
-  optimizers, distributions): the arithmetic, including its C++ dispatch;
+  optimizers, distributions, our networks' layers in
+  ``torchrl_surprise.modules``): the arithmetic, including its C++ dispatch;
 * ``tensordict/torchrl``: TensorDict and TorchRL Python code (keys, specs,
   checks, copies, wrappers);
 * ``other``: the rest (``nn.Module.__call__`` glue, numpy, our code, Python).
@@ -52,10 +53,15 @@ DDPG_STAGES = [
     ("frames += data.numel()", "bookkeeping (stats, obs statistics)"),
     ("buffer.extend(", "replay buffer extend"),
     ("sample = sample_uniform(", "replay buffer sample"),
+    ("sample = buffer.sample(", "replay buffer sample"),  # before DDPGUpdate
     ("if bonus_at_sample:", "bonus on the sample"),
     ("loss_value = ddpg.critic_loss(", "critic loss + backward + Adam"),
     ("loss_actor = ddpg.actor_loss(", "actor loss + backward + Adam"),
     ("ddpg.update_target()", "soft target update"),
+    # the loop as it was before DDPGUpdate (to profile older commits alike)
+    ("loss_value, _ = loss_module.loss_value(", "critic loss + backward + Adam"),
+    ("loss_actor, _ = loss_module.loss_actor(", "actor loss + backward + Adam"),
+    ("target_updater.step()", "soft target update"),
     ("updates += 1", "per-update scalars"),
     ("if vae_loss is not None and updates", "VAE step"),
     ("pbar.update(", "logging, eval, checkpoint"),
@@ -96,6 +102,8 @@ def kind_of(frame: str) -> str:
         return "env"
     if any(s in path for s in ("tensordict/", "torchrl/")):
         return "tensordict/torchrl"
+    if "torchrl_surprise/modules/" in path:
+        return "torch ops"  # our networks' layers (OneDNNLinear, ...)
     if "torch/" in path and not any(
         s in path
         for s in ("torch/nn/modules/module.py", "torch/utils/", "torch/_jit_internal")
