@@ -759,6 +759,11 @@ def main(argv: list[str] | None = None) -> dict:
     details["load_end"] = load()
     details["minutes"] = round((time.perf_counter() - started) / 60, 1)
     text = render(targets, details, plan)
+    if args.quick:
+        text += (
+            "\n--quick: a smoke run; its budgets are too short for the ratios to "
+            "mean much (the recipes' first iterations dominate)"
+        )
     print(text)
     result = {
         "machine": machine(),
