@@ -243,3 +243,10 @@ def test_clear_errors(tmp_path):
         load_bonus_transform(icm_run)
     with pytest.raises(ValueError, match="icm_run"):
         main([str(icm_run), "--out", str(tmp_path / "x.png")])
+    episodic = tmp_path / "elliptical_run"
+    episodic.mkdir()
+    write_checkpoint(
+        episodic / "checkpoint.pt", small_transform(), variant="elliptical"
+    )
+    with pytest.raises(ValueError, match="elliptical_run.*no per-position map"):
+        load_bonus_transform(episodic)

@@ -84,3 +84,106 @@ def test_variants_pass_the_env_check_and_equal_the_batch_path(transform_cls):
     torch.testing.assert_close(
         recomputed["next", "intrinsic_reward"], rollout["next", "intrinsic_reward"]
     )
+
+
+def _elliptical_env(**kwargs):
+    from torchrl.envs import Compose, StepCounter
+
+    from torchrl_surprise.transforms import VAEEllipticalTransform
+
+    base = ContinuousActionVecMockEnv()
+    obs_dim = base.observation_spec["observation"].shape[-1]
+    vae = StateVAE.for_vector(obs_dim, latent_dim=4, hidden_dim=16)
+    bonus = VAEEllipticalTransform(vae, coef=0.1, **kwargs)
+    # Episodes of 3 steps: the memory must restart inside a rollout.
+    return TransformedEnv(base, Compose(StepCounter(max_steps=3), bonus)), bonus
+
+
+@pytest.mark.parametrize("global_bonus", ["none", "kl"])
+def test_elliptical_bonus_env_path_equals_batch_path_across_episodes(global_bonus):
+    env, bonus = _elliptical_env(global_bonus=global_bonus)
+    check_env_specs(env)
+    env, bonus = _elliptical_env(global_bonus=global_bonus)
+    rollout = env.rollout(10, break_when_any_done=False)
+    assert rollout["next", "done"].sum() == 3
+    bonus.reset_episodes()
+    recomputed = bonus(rollout.clone())
+    torch.testing.assert_close(
+        recomputed["next", "intrinsic_reward"], rollout["next", "intrinsic_reward"]
+    )
+
+
+def test_elliptical_bonus_falls_on_repeats_and_restarts_with_the_episode():
+    from tensordict import TensorDict
+
+    from torchrl_surprise.transforms import VAEEllipticalTransform
+
+    vae = StateVAE.for_vector(3, latent_dim=4, hidden_dim=8)
+    transform = VAEEllipticalTransform(vae, in_keys=["observation"], ridge=0.1)
+    state, other = torch.randn(3), torch.randn(3)
+    # env 0 sees one state 3 times, its episode ends, then sees it twice more;
+    # env 1 sees the same state, then another one.
+    obs = torch.stack(
+        [state.expand(5, 3), torch.stack([state, other, state, other, state])]
+    )
+    done = torch.zeros(2, 5, 1, dtype=torch.bool)
+    done[0, 2] = True
+    td = TensorDict(
+        {"next": {"observation": obs, "reward": torch.zeros(2, 5, 1), "done": done}},
+        [2, 5],
+        names=[None, "time"],
+    )
+    b = transform(td)["next", "intrinsic_reward"][..., 0]
+    phi = vae.posterior(state)[0].double()
+    first = float(phi @ phi / 0.1)
+    assert b[0, 0].item() == pytest.approx(first, rel=1e-5)
+    assert b[0, 1] < b[0, 0] and b[0, 2] < b[0, 1]
+    torch.testing.assert_close(b[0, 3:], b[0, :2])  # a new episode: novel again
+    assert b[1, 0] == b[0, 0]  # envs keep separate memories
+    assert b[1, 1] > b[1, 2]  # a state seen in the episode is less novel
+
+
+def test_elliptical_bonus_refuses_batches_without_time_and_other_env_counts():
+    from tensordict import TensorDict
+
+    from torchrl_surprise.transforms import VAEEllipticalTransform
+
+    vae = StateVAE.for_vector(3, latent_dim=2, hidden_dim=8)
+    transform = VAEEllipticalTransform(vae, in_keys=["observation"])
+    sample = TensorDict(
+        {"next": {"observation": torch.randn(4, 3), "reward": torch.zeros(4, 1)}}, [4]
+    )
+    with pytest.raises(ValueError, match="time-ordered"):
+        transform(sample)
+    timed = TensorDict(
+        {"next": {"observation": torch.randn(4, 2, 3), "reward": torch.zeros(4, 2, 1)}},
+        [4, 2],
+        names=[None, "time"],
+    )
+    transform(timed)
+    with pytest.raises(ValueError, match=r"\(4,\) envs, this batch has \(3,\)"):
+        transform(timed[:3])
+    with pytest.raises(ValueError, match="ridge"):
+        VAEEllipticalTransform(vae, in_keys=["observation"], ridge=0.0)
+
+
+def test_elliptical_memory_is_saved_so_a_resumed_run_continues_its_episodes():
+    from tensordict import TensorDict
+
+    from torchrl_surprise.transforms import VAEEllipticalTransform
+
+    vae = StateVAE.for_vector(3, latent_dim=4, hidden_dim=8)
+    td = TensorDict(
+        {"next": {"observation": torch.randn(2, 6, 3), "reward": torch.zeros(2, 6, 1)}},
+        [2, 6],
+        names=[None, "time"],
+    )
+    whole = VAEEllipticalTransform(vae, in_keys=["observation"])(td.clone())
+    first = VAEEllipticalTransform(vae, in_keys=["observation"])
+    first(td[:, :3].clone())
+    resumed = VAEEllipticalTransform(vae, in_keys=["observation"])
+    resumed.load_state_dict(first.state_dict())
+    second = resumed(td[:, 3:].clone())
+    torch.testing.assert_close(
+        second["next", "intrinsic_reward"], whole["next", "intrinsic_reward"][:, 3:]
+    )

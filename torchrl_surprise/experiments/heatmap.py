@@ -499,6 +499,12 @@ def load_bonus_transform(run_dir_or_ckpt: str | os.PathLike):
             f"{path}: unknown intrinsic.vae.variant {variant!r}; expected one of "
             f"{tuple(VAE_VARIANTS)}."
         )
+    if variant == "elliptical":
+        raise ValueError(
+            f"{path}: the elliptical bonus of a state depends on the states seen "
+            "before it in the episode, so it has no per-position map; draw the "
+            "VAE's KL of a run with another intrinsic.vae.variant."
+        )
     vae = StateVAE.for_minigrid(
         latent_dim=vcfg["latent_dim"],
         hidden_dim=vcfg["hidden_dim"],

@@ -42,6 +42,7 @@ from torchrl_surprise.experiments import (
 from torchrl_surprise.transforms import (
     NORMALIZATIONS,
     PrecomputedBonusTransform,
+    VAEEllipticalTransform,
     VAENegativeELBOTransform,
     VAEPosteriorShiftTransform,
     make_coef_schedule,
@@ -81,6 +82,8 @@ VAE_VARIANTS = {
     # trains on the rollout (info_gain) or every few updates (lagged_kl)
     "info_gain": VAEPosteriorShiftTransform,
     "lagged_kl": VAEPosteriorShiftTransform,
+    # episodic novelty: E3B's elliptical bonus on the VAE's posterior mean
+    "elliptical": VAEEllipticalTransform,
 }
 """``intrinsic.vae.variant`` -> the transform that computes the VAE bonus."""
 RND_KEY = "rnd_reward"
@@ -237,7 +240,13 @@ def make_bonus(cfg, action_spec, bonus: str):
             hidden_dim=icfg.vae.hidden_dim,
             use_direction=icfg.vae.use_direction,
         )
-        transform = VAE_VARIANTS[icfg.vae.get("variant", "kl")](vae, **common)
+        variant = icfg.vae.get("variant", "kl")
+        if variant == "elliptical":
+            common.update(
+                ridge=icfg.vae.get("ridge", 0.1),
+                global_bonus=icfg.vae.get("global_bonus", "none"),
+            )
+        transform = VAE_VARIANTS[variant](vae, **common)
         loss = VAELoss(vae, kl_weight=icfg.vae.kl_weight)
     elif bonus == "icm":
         icm = ICMModel.for_minigrid(

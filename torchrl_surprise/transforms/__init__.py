@@ -14,6 +14,7 @@ from torchrl_surprise.transforms.stochasticity import (
     StochasticityTransform,
 )
 from torchrl_surprise.transforms.vae_surprise import (
+    VAEEllipticalTransform,
     VAENegativeELBOTransform,
     VAEPosteriorShiftTransform,
     VAESurpriseTransform,
@@ -27,6 +28,7 @@ __all__ = [
     "PrecomputedBonusTransform",
     "STOCHASTICITY_LEVELS",
     "StochasticityTransform",
+    "VAEEllipticalTransform",
     "VAENegativeELBOTransform",
     "VAEPosteriorShiftTransform",
     "VAESurpriseTransform",

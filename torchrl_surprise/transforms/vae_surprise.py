@@ -7,12 +7,14 @@ from collections.abc import Sequence
 
 import torch
 from tensordict import TensorDictBase
-from tensordict.utils import NestedKey
+from tensordict.utils import NestedKey, unravel_key
 
 from torchrl_surprise.modules.vae import StateVAE, kl_to_standard_normal
 from torchrl_surprise.transforms.base import IntrinsicRewardTransform
 
 __all__ = [
+    "GLOBAL_BONUSES",
+    "VAEEllipticalTransform",
     "VAENegativeELBOTransform",
     "VAEPosteriorShiftTransform",
     "VAESurpriseTransform",
@@ -156,3 +158,183 @@ class VAEPosteriorShiftTransform(VAESurpriseTransform):
             (var + (loc - ref_loc).pow(2)) / ref_var - 1.0 + ref_var.log() - var.log()
         )
         return kl.sum(-1)
+
+
+#: Accepted values of :class:`VAEEllipticalTransform`'s ``global_bonus``.
+GLOBAL_BONUSES = ("none", "kl")
+
+
+class VAEEllipticalTransform(VAESurpriseTransform):
+    """Episodic novelty in the VAE's latent space: E3B's elliptical bonus.
+
+    With ``phi(s)`` the posterior mean of a state and ``C = ridge * I + sum
+    phi phi^T`` over the states seen so far in the episode,
+
+    ``r_int(s_{t+1}) = phi(s_{t+1})^T C^{-1} phi(s_{t+1})``
+
+    (then ``s_{t+1}`` joins ``C``): high for a state unlike every state of the
+    episode so far, whatever the VAE thinks of it globally (Henaff et al. 2022,
+    "Exploration via Elliptical Episodic Bonuses", with the VAE's encoder in
+    place of their inverse-dynamics embedding). ``global_bonus="kl"`` multiplies
+    it by the paper's KL, the product of a global and an episodic term as in
+    NovelD and E3B's follow-ups.
+
+    The bonus depends on the order of states within each episode, so the
+    transform keeps one inverse matrix per env (a buffer: saved by
+    ``state_dict``, a resumed run continues its episodes). In an env it advances
+    one step per ``_step`` and restarts an env's memory when it is done or
+    reset; on a batch it walks the dimension named ``"time"`` (or ``time_dim``)
+    and restarts after each ``done``. A batch that is not time-ordered (a
+    replay-buffer sample) is refused. Call :meth:`reset_episodes` before
+    recomputing the bonus of a batch already seen.
+
+    Args:
+        vae (StateVAE): the state VAE (trained by ``VAELoss``).
+        ridge (float): ``lambda`` of ``C``'s ``lambda * I`` (E3B: 0.1).
+        global_bonus (str): ``"none"`` (the elliptical term alone) or ``"kl"``.
+        done_key (NestedKey): the ``"next"`` entry that ends an episode.
+        **kwargs: see :class:`VAESurpriseTransform`.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl_surprise import StateVAE
+        >>> vae = StateVAE.for_vector(3, latent_dim=2, hidden_dim=8)
+        >>> t = VAEEllipticalTransform(vae, in_keys=["observation"])
+        >>> same = torch.ones(1, 4, 3)  # one env, one state seen four times
+        >>> td = TensorDict({"next": {"observation": same,
+        ...                           "reward": torch.zeros(1, 4, 1),
+        ...                           "done": torch.zeros(1, 4, 1, dtype=torch.bool)}},
+        ...                 [1, 4], names=[None, "time"])
+        >>> bonus = t(td)["next", "intrinsic_reward"][0, :, 0]
+        >>> bool((bonus[1:] < bonus[:-1]).all())  # less novel each time
+        True
+    """
+
+    def __init__(
+        self,
+        vae: StateVAE,
+        in_keys=None,
+        *,
+        ridge: float = 0.1,
+        global_bonus: str = "none",
+        done_key: NestedKey = "done",
+        **kwargs,
+    ):
+        if not ridge > 0:
+            raise ValueError(f"ridge must be positive, got {ridge}.")
+        if global_bonus not in GLOBAL_BONUSES:
+            raise ValueError(
+                f"global_bonus must be one of {GLOBAL_BONUSES}, got {global_bonus!r}."
+            )
+        super().__init__(vae, in_keys=in_keys, **kwargs)
+        self.ridge = float(ridge)
+        self.global_bonus = global_bonus
+        self.done_key = unravel_key(done_key)
+        # C^{-1} per env, [*env_batch, latent, latent], in float64: rank-one
+        # updates over long episodes stay accurate.
+        self.register_buffer("_inv_cov", torch.zeros(0, dtype=torch.float64))
+        self._in_env_step = False
+
+    def reset_episodes(self) -> None:
+        """Forgets every episode in progress (their next states start afresh)."""
+        self._inv_cov = torch.zeros(0, dtype=torch.float64)
+
+    def _fresh(self, batch_shape, device) -> torch.Tensor:
+        eye = torch.eye(self.vae.latent_dim, dtype=torch.float64, device=device)
+        return (eye / self.ridge).expand(*batch_shape, -1, -1).clone()
+
+    def _memory(self, batch_shape, device) -> torch.Tensor:
+        expected = (*batch_shape, self.vae.latent_dim, self.vae.latent_dim)
+        if self._inv_cov.shape != expected:
+            if self._inv_cov.numel():
+                raise ValueError(
+                    f"{type(self).__name__}: it follows episodes of "
+                    f"{tuple(self._inv_cov.shape[:-2])} envs, this batch has "
+                    f"{tuple(batch_shape)}; call reset_episodes() to start afresh."
+                )
+            self._inv_cov = self._fresh(batch_shape, device)
+        return self._inv_cov
+
+    def _bonus_and_update(self, phi: torch.Tensor, done: torch.Tensor | None):
+        """The elliptical bonus of one step of every env, then ``C += phi phi^T``."""
+        inv = self._memory(phi.shape[:-1], phi.device)
+        u = phi.to(torch.float64)
+        inv_u = (inv @ u.unsqueeze(-1)).squeeze(-1)
+        bonus = (u * inv_u).sum(-1)
+        # Sherman-Morrison: (C + u u^T)^{-1} = C^{-1} - C^{-1}u u^T C^{-1} / (1 + u^T C^{-1} u)
+        inv = (
+            inv
+            - inv_u.unsqueeze(-1) * inv_u.unsqueeze(-2) / (1.0 + bonus)[..., None, None]
+        )
+        if done is not None and done.any():
+            inv = torch.where(
+                done[..., None, None], self._fresh(done.shape, inv.device), inv
+            )
+        self._inv_cov = inv
+        return bonus.to(phi.dtype)
+
+    def _done(self, next_tensordict: TensorDictBase, shape) -> torch.Tensor | None:
+        done = next_tensordict.get(self.done_key, None)
+        if done is None:
+            return None
+        return done.reshape(shape).bool()
+
+    def _step(self, tensordict, next_tensordict):
+        self._in_env_step = True
+        try:
+            return super()._step(tensordict, next_tensordict)
+        finally:
+            self._in_env_step = False
+
+    def _reset(self, tensordict, tensordict_reset):
+        if not self._inv_cov.numel():
+            return tensordict_reset
+        mask = None if tensordict is None else tensordict.get("_reset", None)
+        if mask is None:
+            self.reset_episodes()
+        else:
+            mask = mask.reshape(self._inv_cov.shape[:-2]).bool()
+            self._inv_cov = torch.where(
+                mask[..., None, None],
+                self._fresh(mask.shape, self._inv_cov.device),
+                self._inv_cov,
+            )
+        return tensordict_reset
+
+    def _compute_bonus(
+        self, tensordict: TensorDictBase, next_tensordict: TensorDictBase
+    ) -> torch.Tensor:
+        observations = self._observations(next_tensordict, "the 'next' tensordict")
+        loc, scale = self.vae.posterior(*observations)
+        shape = next_tensordict.batch_size
+        if self._in_env_step:
+            bonus = self._bonus_and_update(loc, self._done(next_tensordict, shape))
+        else:
+            time_dim = self.time_dim
+            names = next_tensordict.names if next_tensordict._has_names() else None
+            if time_dim is None and names is not None and "time" in names:
+                time_dim = names.index("time")
+            if time_dim is None:
+                raise ValueError(
+                    f"{type(self).__name__}: the episodic bonus needs time-ordered "
+                    "transitions: a batch with a dimension named 'time' (collectors "
+                    "name it) or time_dim set; a replay-buffer sample has neither."
+                )
+            time_dim = time_dim % len(shape)
+            done = self._done(next_tensordict, shape)
+            steps = []
+            for t in range(shape[time_dim]):
+                step_done = None if done is None else done.select(time_dim, t)
+                steps.append(self._bonus_and_update(loc.select(time_dim, t), step_done))
+            bonus = torch.stack(steps, time_dim)
+        if self.global_bonus == "kl":
+            bonus = bonus * kl_to_standard_normal(loc, scale)
+        return bonus
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        # The memory takes the shape of the envs it follows.
+        inv = state_dict.get(prefix + "_inv_cov")
+        if inv is not None:
+            self._inv_cov = torch.zeros_like(inv)
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
