@@ -3,7 +3,8 @@
 Every update, in this order:
 
 1. the collector gathers ``frames_per_env`` steps from each of ``num_envs`` envs
-   (the set D of Algorithm 1, N = frames_per_env * num_envs transitions);
+   (the set D of Algorithm 1, N = frames_per_env * num_envs transitions), in this
+   process or split over ``collector.workers`` processes;
 2. the bonus of every transition in D is computed in one batched pass with the
    current bonus model and mixed: ``r = r_ext + coef * normalize(r_int)``
    (the env's reward is kept as ``extrinsic_reward`` and is what is logged);
@@ -114,7 +115,10 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         next_ckpt=cfg.checkpoint.interval_frames,
     )
     # The collector holds the episodes in progress; it runs to total_frames from
-    # its own saved frame count, so it is built for the whole run.
+    # its own saved frame count, so it is built for the whole run. With
+    # collector.workers > 1, worker processes step the envs synchronously, each
+    # rollout with the policy's weights after the last update (synced before each
+    # batch); the bonus and the updates stay in this process.
     collector = make_collector(
         env, policy, cfg, total_frames=cfg.collector.total_frames
     )

@@ -10,7 +10,11 @@ command ``python -m torchrl_surprise.experiments.aggregate``
 (:mod:`torchrl_surprise.experiments.aggregate`).
 """
 
-from torchrl_surprise.experiments.collector import ResumableCollector
+from torchrl_surprise.experiments.collector import (
+    ResumableCollector,
+    ResumableMultiSyncCollector,
+    worker_seed,
+)
 from torchrl_surprise.experiments.run import (
     RESUMABLE_CHANGES,
     RESUME_MODES,
@@ -44,6 +48,7 @@ __all__ = [
     "Progress",
     "RNGState",
     "ResumableCollector",
+    "ResumableMultiSyncCollector",
     "StopSignal",
     "config_differences",
     "find_scalar_log",
@@ -60,4 +65,5 @@ __all__ = [
     "save_checkpoint",
     "seed_everything",
     "set_rng_state",
+    "worker_seed",
 ]

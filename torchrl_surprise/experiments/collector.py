@@ -16,16 +16,29 @@ update. :class:`ResumableCollector` adds the two missing pieces:
 
 Restore it after building the collector with the same config, and restore the
 global RNGs after it (the policy samples from torch's generator).
+
+:class:`ResumableMultiSyncCollector` is the same for TorchRL's
+``MultiSyncCollector``: each worker process runs a :class:`ResumableCollector`,
+and the collector's ``state_dict`` gathers each worker's carrier, env runtime
+state and the worker's own torch generator (its policy samples from it).
 """
 
 from __future__ import annotations
 
+import atexit
+import functools
+import io
+import signal
+import weakref
 from collections import OrderedDict
+from collections.abc import Callable, Sequence
 
-from torchrl.collectors import Collector
+import numpy as np
+import torch
+from torchrl.collectors import Collector, MultiSyncCollector
 from torchrl.envs import EnvBase, TransformedEnv
 
-__all__ = ["ResumableCollector"]
+__all__ = ["ResumableCollector", "ResumableMultiSyncCollector", "worker_seed"]
 
 
 def _runtime_env(env: EnvBase):
@@ -73,6 +86,13 @@ class ResumableCollector(Collector):
 
     def load_state_dict(self, state_dict: OrderedDict, **kwargs) -> None:
         state = OrderedDict(state_dict)
+        workers = sum(1 for k in state if str(k).startswith("worker"))
+        if workers:
+            raise ValueError(
+                f"the collector state was saved by {workers} worker processes "
+                "(ResumableMultiSyncCollector): resume with the number of workers "
+                "the run started with."
+            )
         missing = [k for k in ("carrier", "env_runtime") if k not in state]
         if missing:
             raise KeyError(
@@ -85,3 +105,143 @@ class ResumableCollector(Collector):
         super().load_state_dict(state, **kwargs)
         _runtime_env(self.env).load_runtime_state(runtime)
         self._carrier.update(carrier, inplace=True)
+
+
+def worker_seed(seed: int, worker: int) -> int:
+    """The seed of worker ``worker``'s torch generator in a run seeded ``seed``.
+
+    Drawn from ``numpy.random.SeedSequence([seed, worker])``: a stream of its own,
+    unrelated to the main process's (seeded ``seed``) and to the other workers'.
+
+    Examples:
+        >>> worker_seed(0, 0) == worker_seed(0, 0) != worker_seed(0, 1)
+        True
+    """
+    return int(np.random.SeedSequence([seed, worker]).generate_state(1)[0])
+
+
+class _ResumableWorker(ResumableCollector):
+    """The collector each worker process of :class:`ResumableMultiSyncCollector` runs.
+
+    Its state adds the worker's torch generator, which its policy samples from,
+    and leaves out the policy's weights: they are the main process's (shared
+    memory), restored there.
+    """
+
+    def __init__(self, *args, seed: int, worker_idx: int | None = None, **kwargs):
+        # The main process handles SIGINT and SIGTERM (a checkpoint, then shutting
+        # the workers down); a Ctrl-C sent to the whole process group must not kill
+        # a worker before the main process has saved its state.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        torch.manual_seed(worker_seed(seed, worker_idx or 0))
+        super().__init__(*args, worker_idx=worker_idx, **kwargs)
+
+    def state_dict(self) -> OrderedDict:
+        state = super().state_dict()
+        state.pop("policy_state_dict", None)
+        state["torch_rng"] = torch.get_rng_state()
+        # TorchRL's worker loop sends a worker's state through a TensorDict, which
+        # turns Python numbers into tensors: it travels as bytes, unchanged.
+        buffer = io.BytesIO()
+        torch.save(state, buffer)
+        packed = torch.frombuffer(bytearray(buffer.getvalue()), dtype=torch.uint8)
+        return OrderedDict(packed_state=packed)
+
+    def load_state_dict(self, state_dict, **kwargs) -> None:
+        packed = state_dict["packed_state"]
+        state = torch.load(io.BytesIO(packed.numpy().tobytes()), weights_only=False)
+        rng = state.pop("torch_rng")
+        super().load_state_dict(state, **kwargs)
+        torch.set_rng_state(rng)
+
+
+class ResumableMultiSyncCollector(MultiSyncCollector):
+    """TorchRL's ``MultiSyncCollector`` whose ``state_dict`` determines the rest of
+    the run, as :class:`ResumableCollector` does for one process.
+
+    Each worker process builds its env with its factory and runs a
+    :class:`ResumableCollector`; every batch is the workers' rollouts concatenated
+    along the env dimension (``cat_results=0``: with batched envs, the layout of a
+    single collector over all the envs, ``[envs, time]``). The collection is
+    synchronous: every worker collects with the policy as it is when the batch is
+    asked for, and nothing is collected while the main process updates it (the
+    policy's weights live in shared memory and are synced before each batch).
+
+    Its ``state_dict`` holds, per worker, the carrier, the gymnasium envs'
+    runtime state, the env transforms' state and the worker's torch generator, so
+    a collector rebuilt with the same arguments and loaded from it continues
+    exactly. Worker ``w`` seeds its torch generator with
+    :func:`worker_seed(seed, w) <worker_seed>`; the env factories seed the envs.
+
+    Args:
+        create_env_fn: one env factory per worker: picklable (module-level
+            functions or ``functools.partial`` of them), as the workers are
+            started with ``spawn``.
+        policy: the policy; its parameters are moved to shared memory.
+        frames_per_batch (int): frames per batch from each worker (the batch holds
+            ``len(create_env_fn) * frames_per_batch``).
+        total_frames (int): frames to collect over the whole run.
+        seed (int): the run's seed, from which each worker's torch seed is drawn.
+        **kwargs: other arguments of ``MultiSyncCollector``.
+
+    Examples:
+        >>> import functools
+        >>> from torchrl.envs.utils import RandomPolicy
+        >>> from torchrl_surprise.envs import make_minigrid_env
+        >>> factories = [functools.partial(make_minigrid_env, "MiniGrid-Empty-5x5-v0",
+        ...                                num_envs=2, seed=2 * w) for w in range(2)]
+        >>> spec = make_minigrid_env("MiniGrid-Empty-5x5-v0", num_envs=2).action_spec
+        >>> collector = ResumableMultiSyncCollector(
+        ...     factories, RandomPolicy(spec), frames_per_batch=8, total_frames=32, seed=0)
+        >>> batch = next(iter(collector))
+        >>> batch.shape  # 2 workers x 2 envs, 4 steps each
+        torch.Size([4, 4])
+        >>> sorted(collector.state_dict())
+        ['frames', 'iter', 'worker0', 'worker1']
+        >>> collector.shutdown()
+    """
+
+    def __init__(
+        self,
+        create_env_fn: Sequence[Callable[[], EnvBase]],
+        policy=None,
+        *,
+        frames_per_batch: int,
+        total_frames: int,
+        seed: int,
+        **kwargs,
+    ):
+        workers = len(create_env_fn)
+        kwargs.setdefault("num_threads", torch.get_num_threads())
+        super().__init__(
+            list(create_env_fn),
+            policy,
+            frames_per_batch=[frames_per_batch] * workers,
+            total_frames=total_frames,
+            collector_class=functools.partial(_ResumableWorker, seed=seed),
+            cat_results=0,
+            use_buffers=True,
+            update_at_each_batch=True,
+            **kwargs,
+        )
+        # The worker processes are not daemons (TorchRL): a run that fails before
+        # calling shutdown() would wait for them forever at exit.
+        collector = weakref.ref(self)
+
+        def shutdown_at_exit() -> None:
+            if (alive := collector()) is not None:
+                alive.shutdown(raise_on_error=False)
+
+        atexit.register(shutdown_at_exit)
+
+    def load_state_dict(self, state_dict: OrderedDict) -> None:
+        saved = sum(1 for k in state_dict if str(k).startswith("worker"))
+        if saved != self.num_workers:
+            source = f"{saved} workers" if saved else "a single-process collector"
+            raise ValueError(
+                f"the collector state was saved by {source}, this collector has "
+                f"{self.num_workers} workers: resume with the number of workers the "
+                "run started with (the recipes' collector.workers)."
+            )
+        super().load_state_dict(state_dict)

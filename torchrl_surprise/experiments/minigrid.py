@@ -9,11 +9,13 @@ imported by the recipes only.
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 from pathlib import Path
 
 import torch
+from omegaconf import OmegaConf
 from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
 from torch.distributions import Categorical
@@ -37,6 +39,7 @@ from torchrl_surprise.envs import make_minigrid_env
 from torchrl_surprise.experiments import (
     RESUME_MODES,
     ResumableCollector,
+    ResumableMultiSyncCollector,
     evaluate_episodes,
 )
 from torchrl_surprise.transforms import (
@@ -58,6 +61,7 @@ __all__ = [
     "MiniGridConvTrunk",
     "EVAL_SEED_OFFSET",
     "check_config",
+    "check_workers",
     "documented_results",
     "evaluate",
     "init_rl_starter",
@@ -131,6 +135,32 @@ def check_config(cfg) -> None:
         raise ValueError("intrinsic.update_steps and warmup_frames must be >= 0.")
     if not math.isfinite(cfg.intrinsic.coef):
         raise ValueError(f"intrinsic.coef must be finite, got {cfg.intrinsic.coef}.")
+    check_workers(cfg)
+
+
+def check_workers(cfg) -> None:
+    """``collector.workers`` (absent from older configs: 1): a positive integer
+    that divides ``env.num_envs``, and 1 with ``bonus=rnd``."""
+    workers = cfg.collector.get("workers", 1)
+    if not (isinstance(workers, int) and workers > 0):
+        raise ValueError(
+            f"collector.workers must be a positive integer, got {workers!r}."
+        )
+    if cfg.env.num_envs % workers:
+        raise ValueError(
+            f"env.num_envs ({cfg.env.num_envs}) must be a multiple of "
+            f"collector.workers ({workers}): each worker process steps "
+            "env.num_envs / collector.workers envs. Change one of them."
+        )
+    if workers > 1 and cfg.bonus == "rnd":
+        raise ValueError(
+            "bonus=rnd runs TorchRL's RNDTransform inside the env, so with "
+            f"collector.workers={workers} each worker process would compute the bonus "
+            "with its own stale copy of the RND predictor and its statistics. Run "
+            "bonus=rnd with collector.workers=1 (the other bonuses are computed on "
+            "the collected batch in the main process and work with any number of "
+            "workers)."
+        )
 
 
 def make_env(cfg, num_envs: int, seed: int, bonus: str = "none", rnd=None):
@@ -314,14 +344,44 @@ def make_advantage(cfg, model, intrinsic_value, bonus_transform):
 
 
 def make_collector(env, policy, cfg, total_frames: int):
+    """The collector of ``env.num_envs * collector.frames_per_env`` frames a batch.
+
+    With ``collector.workers`` 1 (the default, and what a config without the entry
+    gets): a :class:`~torchrl_surprise.experiments.ResumableCollector` stepping
+    ``env`` in this process. With more, a
+    :class:`~torchrl_surprise.experiments.ResumableMultiSyncCollector`: worker
+    ``w`` builds ``env.num_envs / workers`` envs seeded from
+    ``seed + w * env.num_envs / workers`` (the sub-envs get the seeds they get with
+    one process), ``env`` only gave the specs and is closed. Either way the state
+    holds the episodes in progress, so a resumed run continues exactly.
+    """
+    workers = cfg.collector.get("workers", 1)
     frames_per_batch = cfg.env.num_envs * cfg.collector.frames_per_env
-    # ResumableCollector: a TorchRL Collector whose state_dict also holds the
-    # episodes in progress, so a resumed run continues exactly.
-    return ResumableCollector(
-        env,
+    if workers == 1:
+        # ResumableCollector: a TorchRL Collector whose state_dict also holds the
+        # episodes in progress, so a resumed run continues exactly.
+        return ResumableCollector(
+            env,
+            policy,
+            frames_per_batch=frames_per_batch,
+            total_frames=total_frames,
+            auto_register_policy_transforms=False,
+        )
+    env.close()
+    per_worker = cfg.env.num_envs // workers
+    # The workers are spawned processes: the factories travel pickled, with the
+    # env settings only (no Hydra interpolation to resolve there).
+    env_cfg = OmegaConf.create({"env": OmegaConf.to_container(cfg.env, resolve=True)})
+    factories = [
+        functools.partial(make_env, env_cfg, per_worker, seed=cfg.seed + w * per_worker)
+        for w in range(workers)
+    ]
+    return ResumableMultiSyncCollector(
+        factories,
         policy,
-        frames_per_batch=frames_per_batch,
+        frames_per_batch=per_worker * cfg.collector.frames_per_env,
         total_frames=total_frames,
+        seed=cfg.seed,
         auto_register_policy_transforms=False,
     )
 

@@ -1,0 +1,155 @@
+"""The MiniGrid recipes with ``collector.workers=2`` (TorchRL's MultiSyncCollector),
+run as a user runs them (tiny budgets), and the workers' config checks."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from _recipe_run import differing_logs, kill_after_checkpoint
+from hydra import compose, initialize_config_dir
+from omegaconf import open_dict
+
+from torchrl_surprise.experiments import (
+    ResumableCollector,
+    load_checkpoint,
+    read_scalar_csv,
+)
+from torchrl_surprise.experiments.minigrid import (
+    check_config,
+    make_actor_critic,
+    make_collector,
+    make_env,
+)
+
+RECIPES = Path(__file__).resolve().parents[1] / "recipes"
+A2C = RECIPES / "a2c_minigrid"
+# 2 workers x 2 envs x 8 steps = 32 frames per update.
+TINY = [
+    "env.name=MiniGrid-MultiRoom-N3-S4-v0",
+    "env.num_envs=4",
+    "collector.frames_per_env=8",
+    "eval.interval_frames=256",
+    "eval.episodes=4",
+    "eval.num_envs=2",
+    "checkpoint.interval_frames=128",
+    "logger.log_interval=1",
+]
+RUN = ["bonus=vae", "collector.workers=2", "collector.total_frames=1024", "seed=3"]
+
+
+def run_recipe(recipe: Path, run_dir: Path, *overrides: str, check: bool = True):
+    cmd = [sys.executable, str(recipe / "main.py"), f"hydra.run.dir={run_dir}"]
+    proc = subprocess.run(
+        [*cmd, *TINY, *overrides], capture_output=True, text=True, timeout=300
+    )
+    if check and proc.returncode != 0:
+        raise AssertionError(
+            f"recipe failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
+        )
+    return proc
+
+
+@pytest.fixture(scope="module")
+def a2c_run(tmp_path_factory) -> Path:
+    """One uninterrupted A2C run with two workers: the reference of the tests."""
+    run_dir = tmp_path_factory.mktemp("workers") / "whole"
+    run_recipe(A2C, run_dir, *RUN)
+    return run_dir
+
+
+def test_a2c_with_two_workers_learns_from_every_batch(a2c_run):
+    scalars = a2c_run / "logs" / "a2c" / "scalars"
+    # Each update gets one batch of 32 frames, 16 from each worker.
+    steps, grad_norm = read_scalar_csv(scalars / "train" / "grad_norm.csv")
+    assert list(steps) == list(range(32, 1025, 32))
+    assert torch.isfinite(torch.as_tensor(grad_norm)).all() and (grad_norm > 0).all()
+    _, raw = read_scalar_csv(scalars / "train" / "intrinsic_reward.csv")
+    assert (raw > 0).all(), "the VAE bonus of every batch"
+    _, episodes = read_scalar_csv(scalars / "train" / "episodes.csv")
+    assert episodes[-1] > 0
+    steps, _ = read_scalar_csv(scalars / "eval" / "episode_return.csv")
+    assert list(steps) == [256, 512, 768, 1024]
+    ckpt = load_checkpoint(a2c_run / "checkpoint.pt")
+    assert ckpt["frames"] == 1024 and ckpt["collector"]["frames"] == 1024
+    assert {"worker0", "worker1"} <= set(ckpt["collector"])
+
+
+def test_same_seed_and_workers_give_the_same_logs(tmp_path, a2c_run):
+    run_recipe(A2C, tmp_path / "again", *RUN)
+    assert differing_logs(a2c_run, tmp_path / "again") == []
+
+
+def test_killed_and_resumed_run_with_workers_logs_what_the_uninterrupted_run_logs(
+    tmp_path, a2c_run
+):
+    killed_dir = tmp_path / "killed"
+    cmd = [sys.executable, str(A2C / "main.py"), f"hydra.run.dir={killed_dir}"]
+    killed = kill_after_checkpoint(
+        [*cmd, *TINY, *RUN], killed_dir / "checkpoint.pt", min_frames=256
+    )
+    assert 256 <= killed["frames"] < 1024, "the kill must land mid-run"
+    run_recipe(A2C, killed_dir, *RUN)
+    assert differing_logs(a2c_run, killed_dir) == []
+    # Another number of workers is another experiment: refused, not half-loaded.
+    proc = run_recipe(
+        A2C, killed_dir, *RUN, "collector.workers=1", "resume=true", check=False
+    )
+    assert proc.returncode != 0
+    assert "collector.workers: 2 -> 1" in proc.stderr
+
+
+def test_ppo_with_two_workers(tmp_path):
+    run_dir = tmp_path / "ppo"
+    overrides = ["collector.frames_per_env=32", "loss.minibatch_size=64"]
+    run_recipe(
+        RECIPES / "ppo_minigrid",
+        run_dir,
+        *overrides,
+        "loss.epochs=2",
+        "bonus=vae",
+        "collector.workers=2",
+        "collector.total_frames=256",
+    )
+    scalars = run_dir / "logs" / "ppo" / "scalars"
+    steps, kl = read_scalar_csv(scalars / "train" / "kl_approx.csv")
+    assert list(steps) == [128, 256] and torch.isfinite(torch.as_tensor(kl)).all()
+    assert load_checkpoint(run_dir / "checkpoint.pt")["frames"] == 256
+
+
+def _config(*overrides: str):
+    with initialize_config_dir(config_dir=str(A2C), version_base=None):
+        return compose(config_name="config", overrides=[*TINY, *overrides])
+
+
+@pytest.mark.parametrize(
+    "overrides, message",
+    [
+        (["collector.workers=3"], r"env.num_envs \(4\) must be a multiple of"),
+        (["collector.workers=0"], "collector.workers must be a positive integer"),
+        (
+            ["collector.workers=2", "bonus=rnd"],
+            "Run bonus=rnd with collector.workers=1",
+        ),
+    ],
+    ids=["divisor", "zero", "rnd"],
+)
+def test_bad_workers_are_refused_before_anything_runs(overrides, message):
+    with pytest.raises(ValueError, match=message):
+        check_config(_config(*overrides))
+
+
+def test_a_config_without_workers_collects_in_one_process():
+    # Runs started from a config written before collector.workers existed.
+    cfg = _config()
+    with open_dict(cfg):
+        del cfg.collector.workers
+    check_config(cfg)
+    env = make_env(cfg, cfg.env.num_envs, seed=0)
+    model, _ = make_actor_critic(env.action_spec, intrinsic_critic=False)
+    collector = make_collector(env, model.get_policy_operator(), cfg, total_frames=64)
+    assert type(collector) is ResumableCollector
+    collector.shutdown()
