@@ -46,7 +46,8 @@ def make_ppo(cfg, model, intrinsic_value, bonus_transform):
 
     The loss is torch-ac's PPO (what rl-starter-files runs): clipped ratio, the
     value update clipped by the same epsilon around the collecting critic's value,
-    squared error, no advantage normalisation.
+    squared error, no advantage normalisation unless ``loss.normalize_advantage``
+    (per minibatch, as Stable-Baselines3 and CleanRL do).
 
     Returns ``(loss, advantage, intrinsic_value_loss or None)``.
     """
@@ -58,7 +59,7 @@ def make_ppo(cfg, model, intrinsic_value, bonus_transform):
         critic_coeff=cfg.loss.critic_coef,
         loss_critic_type="l2",
         clip_value=True,
-        normalize_advantage=False,
+        normalize_advantage=bool(cfg.loss.get("normalize_advantage", False)),
     )
     advantage, value_loss = make_advantage(cfg, model, intrinsic_value, bonus_transform)
     return loss, advantage, value_loss
