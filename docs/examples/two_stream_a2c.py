@@ -85,8 +85,12 @@ def main(frames: int = 20_000, env_name: str = "MiniGrid-MultiRoom-N3-S4-v0") ->
     a2c = A2CLoss(policy, value, entropy_coeff=0.01, critic_coeff=0.5)
     critic_int = IntrinsicValueLoss(value_int, critic_coef=0.5)
     vae_loss = VAELoss(vae)
-    params = {p for m in (policy, value, value_int) for p in m.parameters()}
-    optim = torch.optim.RMSprop(list(params), lr=1e-3, alpha=0.99, eps=1e-8)
+    # The shared trunk's parameters once each, in a fixed order (a set's order
+    # changes from run to run, and with it the optimiser's arithmetic).
+    params = list(
+        dict.fromkeys(p for m in (policy, value, value_int) for p in m.parameters())
+    )
+    optim = torch.optim.RMSprop(params, lr=1e-3, alpha=0.99, eps=1e-8)
     vae_optim = torch.optim.Adam(vae.parameters(), lr=1e-3)
 
     collector = Collector(
