@@ -153,3 +153,26 @@ def test_a_config_without_workers_collects_in_one_process():
     collector = make_collector(env, model.get_policy_operator(), cfg, total_frames=64)
     assert type(collector) is ResumableCollector
     collector.shutdown()
+
+
+def test_every_batch_is_collected_with_the_weights_of_the_last_update():
+    # Algorithm 1's order: the update between two batches is what the workers'
+    # policy samples the next batch with.
+    cfg = _config("collector.workers=2")
+    env = make_env(cfg, cfg.env.num_envs, seed=0)
+    model, _ = make_actor_critic(env.action_spec, intrinsic_critic=False)
+    policy = model.get_policy_operator()
+    collector = make_collector(env, policy, cfg, total_frames=32 * 4)
+    try:
+        for i, batch in enumerate(collector):
+            assert batch.shape == (4, 8)
+            if i == 0:
+                assert batch["action"].unique().numel() > 1
+            else:
+                assert (batch["action"] == 2).all()
+            with torch.no_grad():  # the "update": always action 2 from now on
+                last = list(policy.parameters())[-1]
+                last.zero_()
+                last[2] = 100.0
+    finally:
+        collector.shutdown()

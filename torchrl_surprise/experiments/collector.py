@@ -37,6 +37,7 @@ import numpy as np
 import torch
 from torchrl.collectors import Collector, MultiSyncCollector
 from torchrl.envs import EnvBase, TransformedEnv
+from torchrl.weight_update import SharedMemWeightSyncScheme
 
 __all__ = ["ResumableCollector", "ResumableMultiSyncCollector", "worker_seed"]
 
@@ -164,9 +165,12 @@ class ResumableMultiSyncCollector(MultiSyncCollector):
     :class:`ResumableCollector`; every batch is the workers' rollouts concatenated
     along the env dimension (``cat_results=0``: with batched envs, the layout of a
     single collector over all the envs, ``[envs, time]``). The collection is
-    synchronous: every worker collects with the policy as it is when the batch is
-    asked for, and nothing is collected while the main process updates it (the
-    policy's weights live in shared memory and are synced before each batch).
+    synchronous: the workers collect only when a batch is asked for, and every
+    worker collects with the policy as it is then. TorchRL's default weight sync
+    for an ``nn.Module`` policy (``SharedMemWeightSyncScheme``) moves its
+    parameters to shared memory, where the workers' copies read them: an update
+    made in the main process between two batches is what the next batch is
+    collected with, without a message per batch.
 
     Its ``state_dict`` holds, per worker, the carrier, the gymnasium envs'
     runtime state, the env transforms' state and the worker's torch generator, so
@@ -214,6 +218,13 @@ class ResumableMultiSyncCollector(MultiSyncCollector):
     ):
         workers = len(create_env_fn)
         kwargs.setdefault("num_threads", torch.get_num_threads())
+        if isinstance(policy, torch.nn.Module):
+            # TorchRL's default for a module policy, made here to be shut down
+            # with the collector (see shutdown).
+            kwargs.setdefault(
+                "weight_sync_schemes", {"policy": SharedMemWeightSyncScheme()}
+            )
+        schemes = list(kwargs.get("weight_sync_schemes", {}).values())
         super().__init__(
             list(create_env_fn),
             policy,
@@ -222,9 +233,9 @@ class ResumableMultiSyncCollector(MultiSyncCollector):
             collector_class=functools.partial(_ResumableWorker, seed=seed),
             cat_results=0,
             use_buffers=True,
-            update_at_each_batch=True,
             **kwargs,
         )
+        self._schemes_to_shut_down = schemes
         # The worker processes are not daemons (TorchRL): a run that fails before
         # calling shutdown() would wait for them forever at exit.
         collector = weakref.ref(self)
@@ -234,6 +245,21 @@ class ResumableMultiSyncCollector(MultiSyncCollector):
                 alive.shutdown(raise_on_error=False)
 
         atexit.register(shutdown_at_exit)
+
+    def shutdown(
+        self,
+        timeout: float | None = None,
+        close_env: bool = True,
+        raise_on_error: bool = True,
+    ) -> None:
+        # TorchRL 0.14 leaves the weight-sync scheme to its __del__, which, when it
+        # runs at interpreter exit, starts a queue thread and waits for it forever.
+        schemes = getattr(self, "_schemes_to_shut_down", [])
+        while schemes:
+            schemes.pop().shutdown()
+        super().shutdown(
+            timeout=timeout, close_env=close_env, raise_on_error=raise_on_error
+        )
 
     def load_state_dict(self, state_dict: OrderedDict) -> None:
         saved = sum(1 for k in state_dict if str(k).startswith("worker"))
