@@ -23,6 +23,10 @@ average is recorded with each measurement.
    ``ru_maxrss`` from ``wait4``), the DDPG replay buffer's bytes per transition
    (measured in the recipe's buffer) extrapolated to 1M transitions, and two runs
    side by side against 24 GiB.
+6. Collector workers: frames/s of the A2C recipe (defaults) with
+   ``collector.workers=2`` over ``collector.workers=1``, for ``bonus=none`` and
+   ``bonus=vae`` (the goal, >= 1, is that one run gets more than one core's
+   frames/s; how much more depends on the free cores).
 
 Recipes and the peer run as subprocesses (their start-up is not timed: the recipes
 time their own training loop, the peer is timed the same way). Usage::
@@ -30,6 +34,7 @@ time their own training loop, the peer is timed the same way). Usage::
     python benchmarks/bench_speed.py            # ~20 min on 2 busy cores
     python benchmarks/bench_speed.py --quick    # smoke run, ~4 min
     python benchmarks/bench_speed.py --items 2 4 --rounds 5
+    python benchmarks/bench_speed.py --items 6 --out docs/results/bench_workers
 
 Writes ``<out>.json`` and ``<out>.txt`` (default ``docs/results/bench_speed``;
 with ``--quick`` a temporary directory unless ``--out`` is given).
@@ -66,6 +71,10 @@ PEER_ENVS = ("MiniGrid-MultiRoom-N3-S4-v0", "MiniGrid-DoorKey-8x8-v0")
 MINIGRID_PIPELINE_ENVS = ("MiniGrid-DoorKey-8x8-v0", "MiniGrid-MultiRoom-N3-S4-v0")
 MUJOCO_PIPELINE_ENVS = ("Hopper-v5", "HalfCheetah-v5")
 A2C_NUM_ENVS = 16  # recipes/a2c_minigrid/config.yaml
+WORKER_BONUSES = (
+    "none",
+    "vae",
+)  # item 6: without and with the bonus's main-process work
 DDPG_NUM_ENVS = 4  # recipes/ddpg_mujoco/config.yaml
 
 __all__ = ["main"]
@@ -171,8 +180,10 @@ class Target:
         return self.measured <= self.goal
 
 
-# ---- item 1 and 3: the A2C recipe -------------------------------------------------
-def a2c_recipe(bonus: str, env_name: str | None, frames: int, tmp: Path) -> Sample:
+# ---- items 1, 3 and 6: the A2C recipe ---------------------------------------------
+def a2c_recipe(
+    bonus: str, env_name: str | None, frames: int, tmp: Path, workers: int = 1
+) -> Sample:
     run_dir = tmp / f"a2c_{bonus}_{len(list(tmp.iterdir()))}"
     overrides = [
         f"bonus={bonus}",
@@ -183,6 +194,9 @@ def a2c_recipe(bonus: str, env_name: str | None, frames: int, tmp: Path) -> Samp
     ]
     if env_name is not None:
         overrides.append(f"env.name={env_name}")
+    if workers != 1:
+        # the workers' start-up is not timed: the recipe times its training loop
+        overrides.append(f"collector.workers={workers}")
     load1 = os.getloadavg()[0]
     child = run_child([sys.executable, str(A2C_MAIN), *overrides])
     fps = last_scalar(run_dir, "a2c", "time/fps")
@@ -531,7 +545,7 @@ def machine() -> dict:
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="a fast smoke run")
-    parser.add_argument("--items", type=int, nargs="+", default=[1, 2, 3, 4, 5])
+    parser.add_argument("--items", type=int, nargs="+", default=[1, 2, 3, 4, 5, 6])
     parser.add_argument("--rounds", type=int, help="interleaved rounds per ratio")
     parser.add_argument("--peer-threads", type=int, default=1)
     parser.add_argument("--out", help="output path prefix (.json and .txt added)")
@@ -755,6 +769,37 @@ def main(argv: list[str] | None = None) -> dict:
                     note=f"2 x {rss['a2c'] / GIB:.2f} GiB peak",
                 )
             )
+
+        if 6 in args.items:
+            print("[6] A2C recipe (defaults): 2 collector workers vs 1, frames/s")
+            details["a2c_workers"] = {"cores": os.cpu_count()}
+            for bonus in WORKER_BONUSES:
+                samples = interleave(
+                    {
+                        f"{w} worker{'s' * (w > 1)}": lambda b=bonus, w=w: a2c_recipe(
+                            b, None, plan.a2c_frames, tmp, workers=w
+                        )
+                        for w in (1, 2)
+                    },
+                    plan.rounds,
+                )
+                details["a2c_workers"][bonus] = {
+                    k: {
+                        "frames_per_s": [s.value for s in v],
+                        "load1": [s.load1 for s in v],
+                    }
+                    for k, v in samples.items()
+                }
+                one, two = med(samples["1 worker"]), med(samples["2 workers"])
+                targets.append(
+                    Target(
+                        6,
+                        f"A2C {bonus}: 2 collector workers / 1 (frames/s)",
+                        paired_ratio(samples, "2 workers", "1 worker"),
+                        1.0,
+                        note=f"{two:,.0f} / {one:,.0f}; {os.cpu_count()} cores",
+                    )
+                )
 
     details["load_end"] = load()
     details["minutes"] = round((time.perf_counter() - started) / 60, 1)
