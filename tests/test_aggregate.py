@@ -280,3 +280,29 @@ def test_no_run_directory_is_a_clear_error(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main([str(tmp_path / "missing"), "--out", str(tmp_path / "out")])
     assert str(tmp_path / "missing") in capsys.readouterr().err
+
+
+def test_a_threshold_counts_only_once_the_episode_window_is_full():
+    from torchrl_surprise.experiments.aggregate import frames_to_threshold
+
+    # The first episodes to end are the short successes (return 0.8 at 1000
+    # frames), the time-outs end later and pull the mean down; the 100-episode
+    # window fills at 3000 frames, where the return is 0.5 of the oracle's.
+    rows = [(1000, 0.8, 10), (2000, 0.2, 60), (3000, 0.5, 120), (4000, 0.9, 200)]
+    run = {"task": "A", "setting": "s", "seed": 0}
+    data = pd.DataFrame(
+        [
+            {**run, "frames": f, "metric": "train/episode_return", "value": v}
+            for f, v, _ in rows
+        ]
+        + [
+            {**run, "frames": f, "metric": "train/episodes", "value": n}
+            for f, _, n in rows
+        ]
+    )
+    table = frames_to_threshold(data, {"A": 1.0}, fractions=[0.5, 0.8])
+    assert table["frames"].tolist() == [3000, 4000]
+    # A run that logged no episode count is read as before.
+    plain = data[data["metric"] == "train/episode_return"]
+    table = frames_to_threshold(plain, {"A": 1.0}, fractions=[0.5, 0.8])
+    assert table["frames"].tolist() == [1000, 1000]

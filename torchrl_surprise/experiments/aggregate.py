@@ -100,6 +100,8 @@ import pandas as pd
 from torchrl_surprise.experiments.run import read_scalar_csv
 
 __all__ = [
+    "EPISODES_METRIC",
+    "EPISODE_WINDOW",
     "FRACTIONS",
     "METRICS",
     "RunInfo",
@@ -134,6 +136,12 @@ RETURN_METRICS: tuple[str, ...] = ("train/episode_return", "eval/episode_return"
 MAIN_METRIC = "train/episode_return"
 #: Fractions of the oracle return whose first crossing is reported.
 FRACTIONS: tuple[float, ...] = (0.5, 0.8, 0.9)
+#: The cumulative count of finished episodes: a crossing counts only once the
+#: moving window of the train return is full (see :func:`frames_to_threshold`).
+EPISODES_METRIC = "train/episodes"
+#: Episodes the train return's moving window holds (the recipes' default
+#: ``logger.episode_window``).
+EPISODE_WINDOW = 100
 
 _RUN_KEYS = ["task", "setting", "seed"]
 # Overrides that name the run (which seed, which task, which sweep) or how Hydra
@@ -286,7 +294,7 @@ def _read_metrics(run: RunInfo) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     curves = {}
     if run.scalars_dir is None:
         return curves
-    for metric in METRICS:
+    for metric in (*METRICS, EPISODES_METRIC):
         path = run.scalars_dir / f"{metric}.csv"
         if path.is_file():
             steps, values = read_scalar_csv(path)
@@ -306,7 +314,8 @@ def _downsample(n: int, max_points: int) -> np.ndarray:
 def extract_run_data(runs: Sequence[RunInfo], max_points: int = 200) -> pd.DataFrame:
     """The long table of ``runs.csv``: ``task,setting,seed,frames,metric,value``.
 
-    Reads the metrics of :data:`METRICS` that each run logged (a step logged twice
+    Reads the metrics of :data:`METRICS` and :data:`EPISODES_METRIC` that each
+    run logged (a step logged twice
     keeps its last value, non-finite values are dropped) and keeps at most
     ``max_points`` points per run and metric, the last one always. Values are raw.
 
@@ -518,11 +527,15 @@ def frames_to_threshold(
     oracle: Mapping[str, float],
     budget: int | None = None,
     fractions: Sequence[float] = FRACTIONS,
+    window: int = EPISODE_WINDOW,
 ) -> pd.DataFrame:
     """Per seed, the first frame at which the normalised train return reached each fraction.
 
     Only tasks in ``oracle`` are covered, and only steps up to the budget (as in
-    :func:`final_scores`) are searched.
+    :func:`final_scores`) are searched. Where the run logged its episode count
+    (:data:`EPISODES_METRIC`), a step counts only once ``window`` episodes have
+    ended: before that the moving mean holds the few episodes that ended first,
+    the short, successful ones when failures run to a long time limit.
 
     Returns:
         ``task, setting, seed, fraction, frames, searched_to``; ``frames`` is
@@ -538,14 +551,28 @@ def frames_to_threshold(
         1    A       s     0       1.5    <NA>           30
     """
     budgets = _budgets(data, budget)
+    episodes = {
+        key: run.sort_values("frames")
+        for key, run in data[data["metric"] == EPISODES_METRIC].groupby(_RUN_KEYS)
+    }
     data = data[(data["metric"] == MAIN_METRIC) & data["task"].isin(list(oracle))]
     data = normalize_returns(data, oracle)
     rows = []
     for (task, setting, seed), run in data.groupby(_RUN_KEYS, sort=True):
         run = run[run["frames"] <= budgets[task]].sort_values("frames")
         searched_to = int(run["frames"].iloc[-1]) if len(run) else None
+        counts = episodes.get((task, setting, seed))
+        full = np.ones(len(run), dtype=bool)
+        if counts is not None and len(run):
+            # the count logged at or before each step (0 before the first)
+            ended = pd.merge_asof(
+                run[["frames"]],
+                counts[["frames", "value"]].rename(columns={"value": "ended"}),
+                on="frames",
+            )["ended"].fillna(0)
+            full = ended.to_numpy() >= window
         for fraction in fractions:
-            reached = run["frames"][run["value"] >= fraction]
+            reached = run["frames"][(run["value"] >= fraction).to_numpy() & full]
             rows.append(
                 {
                     "task": task,
