@@ -3,6 +3,8 @@ run as a user runs them (tiny budgets), and the workers' config checks."""
 
 from __future__ import annotations
 
+import functools
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -170,6 +172,49 @@ def test_every_batch_is_collected_with_the_weights_of_the_last_update():
                 assert batch["action"].unique().numel() > 1
             else:
                 assert (batch["action"] == 2).all()
+            with torch.no_grad():  # the "update": always action 2 from now on
+                last = list(policy.parameters())[-1]
+                last.zero_()
+                last[2] = 100.0
+    finally:
+        collector.shutdown()
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("", 0))
+        return sock.getsockname()[1]
+
+
+def test_torchrl_distributed_collector_runs_here_in_algorithm_1_order():
+    # The configuration docs/recipes.rst gives for more than one machine, on local
+    # processes (launcher="mp"): synchronous, the weights sent before each batch.
+    from torchrl.collectors.distributed import DistributedCollector
+
+    cfg = _config()
+    env = make_env(cfg, 2, seed=0)
+    model, _ = make_actor_critic(env.action_spec, intrinsic_critic=False)
+    policy = model.get_policy_operator()
+    nodes, envs_per_node = 2, 2
+    collector = DistributedCollector(
+        [
+            functools.partial(make_env, cfg, envs_per_node, seed=i * envs_per_node)
+            for i in range(nodes)
+        ],
+        policy,
+        frames_per_batch=nodes * envs_per_node * 8,
+        total_frames=nodes * envs_per_node * 8 * 3,
+        sync=True,
+        update_after_each_batch=True,
+        launcher="mp",
+        tcp_port=_free_port(),
+        collector_kwargs={"auto_register_policy_transforms": False},
+    )
+    try:
+        for i, batch in enumerate(collector):
+            assert batch.shape == (nodes, envs_per_node, 8)
+            actions = batch["action"]
+            assert (actions == 2).all() if i else actions.unique().numel() > 1
             with torch.no_grad():  # the "update": always action 2 from now on
                 last = list(policy.parameters())[-1]
                 last.zero_()
