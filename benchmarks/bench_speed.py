@@ -26,7 +26,13 @@ average is recorded with each measurement.
 6. Collector workers: frames/s of the A2C recipe (defaults) with
    ``collector.workers=2`` over ``collector.workers=1``, for ``bonus=none`` and
    ``bonus=vae`` (the goal, >= 1, is that one run gets more than one core's
-   frames/s; how much more depends on the free cores).
+   frames/s; how much more depends on the free cores); and the same for the
+   recipe's collector alone (its envs, policy and ``make_collector``, no
+   training), with the A2C recipe's batch (16 envs x 8 steps) and the PPO
+   recipe's (16 x 128), which separates what the workers cost per batch from
+   what the training process leaves unparallelised. Printed under the table:
+   the collector's frames per CPU second in one process with 16, 8, 4 and 2 envs
+   (what a worker's share of the envs costs per frame).
 
 Recipes and the peer run as subprocesses (their start-up is not timed: the recipes
 time their own training loop, the peer is timed the same way). Usage::
@@ -71,10 +77,10 @@ PEER_ENVS = ("MiniGrid-MultiRoom-N3-S4-v0", "MiniGrid-DoorKey-8x8-v0")
 MINIGRID_PIPELINE_ENVS = ("MiniGrid-DoorKey-8x8-v0", "MiniGrid-MultiRoom-N3-S4-v0")
 MUJOCO_PIPELINE_ENVS = ("Hopper-v5", "HalfCheetah-v5")
 A2C_NUM_ENVS = 16  # recipes/a2c_minigrid/config.yaml
-WORKER_BONUSES = (
-    "none",
-    "vae",
-)  # item 6: without and with the bonus's main-process work
+# item 6: the bonuses (without and with the bonus's work in the training process),
+# and the frames per env of the collector-alone batches (the A2C and PPO recipes')
+WORKER_BONUSES = ("none", "vae")
+COLLECTOR_STEPS = (8, 128)
 DDPG_NUM_ENVS = 4  # recipes/ddpg_mujoco/config.yaml
 
 __all__ = ["main"]
@@ -245,6 +251,80 @@ class RLStarterACModel(nn.Module):
             logits=nn.functional.log_softmax(self.actor(x), dim=1)
         )
         return dist, self.critic(x).squeeze(1)
+
+
+def collector_worker(workers: int, frames_per_env: int, frames: int) -> None:
+    """The A2C recipe's collector alone, frames/s after its first batch; prints JSON."""
+    from hydra import compose, initialize_config_dir
+
+    from torchrl_surprise.experiments.minigrid import (
+        make_actor_critic,
+        make_collector,
+        make_env,
+    )
+
+    torch.set_num_threads(1)  # the recipe's torch_threads
+    overrides = [
+        f"collector.workers={workers}",
+        f"collector.frames_per_env={frames_per_env}",
+    ]
+    with initialize_config_dir(config_dir=str(A2C_MAIN.parent), version_base=None):
+        cfg = compose(config_name="config", overrides=overrides)
+    torch.manual_seed(0)
+    env = make_env(cfg, cfg.env.num_envs, seed=0)
+    model, _ = make_actor_critic(env.action_spec, intrinsic_critic=False)
+    batch = cfg.env.num_envs * frames_per_env
+    batches = max(frames // batch, 2)
+    collector = make_collector(
+        env, model.get_policy_operator(), cfg, total_frames=(batches + 1) * batch
+    )
+    it = iter(collector)
+    next(it)  # the first batch: the workers' first steps, not timed
+    start, done = time.perf_counter(), 0
+    for data in it:
+        done += data.numel()
+    fps = done / (time.perf_counter() - start)
+    collector.shutdown()
+    print(json.dumps({"fps": fps}))
+
+
+def collector_frames_per_cpu_s(num_envs: int, frames: int) -> float:
+    """One process's collector (the A2C recipe's envs and policy, 128 steps per
+    env and batch): frames per CPU second of this single-threaded process."""
+    from hydra import compose, initialize_config_dir
+
+    from torchrl_surprise.experiments.minigrid import (
+        make_actor_critic,
+        make_collector,
+        make_env,
+    )
+
+    overrides = [f"env.num_envs={num_envs}", "collector.frames_per_env=128"]
+    with initialize_config_dir(config_dir=str(A2C_MAIN.parent), version_base=None):
+        cfg = compose(config_name="config", overrides=overrides)
+    env = make_env(cfg, num_envs, seed=0)
+    model, _ = make_actor_critic(env.action_spec, intrinsic_critic=False)
+    batch = num_envs * 128
+    batches = max(frames // batch, 2)
+    collector = make_collector(
+        env, model.get_policy_operator(), cfg, total_frames=(batches + 1) * batch
+    )
+    it = iter(collector)
+    next(it)  # warm-up
+    cpu, done = time.process_time(), 0
+    for data in it:
+        done += data.numel()
+    cpu = time.process_time() - cpu
+    collector.shutdown()
+    return done / cpu
+
+
+def collector_alone(workers: int, frames_per_env: int, frames: int) -> Sample:
+    load1 = os.getloadavg()[0]
+    args = ["--collector-worker", str(workers), str(frames_per_env), str(frames)]
+    child = run_child([sys.executable, __file__, *args])
+    fps = json.loads(child.stdout.strip().splitlines()[-1])["fps"]
+    return Sample(fps, load1)
 
 
 def peer_worker(env_name: str, frames: int, seed: int, threads: int) -> None:
@@ -550,7 +630,11 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--peer-threads", type=int, default=1)
     parser.add_argument("--out", help="output path prefix (.json and .txt added)")
     parser.add_argument("--peer-worker", nargs=4, help=argparse.SUPPRESS)
+    parser.add_argument("--collector-worker", nargs=3, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.collector_worker:
+        collector_worker(*(int(a) for a in args.collector_worker))
+        return {}
     if args.peer_worker:
         env_name, frames, seed, threads = args.peer_worker
         peer_worker(env_name, int(frames), int(seed), int(threads))
@@ -800,6 +884,50 @@ def main(argv: list[str] | None = None) -> dict:
                         note=f"{two:,.0f} / {one:,.0f}; {os.cpu_count()} cores",
                     )
                 )
+            for steps in COLLECTOR_STEPS:
+                samples = interleave(
+                    {
+                        f"{w} worker{'s' * (w > 1)}": lambda s=steps, w=w: (
+                            collector_alone(w, s, plan.a2c_frames)
+                        )
+                        for w in (1, 2)
+                    },
+                    plan.rounds,
+                )
+                details["a2c_workers"][f"collector_16x{steps}"] = {
+                    k: {
+                        "frames_per_s": [s.value for s in v],
+                        "load1": [s.load1 for s in v],
+                    }
+                    for k, v in samples.items()
+                }
+                one, two = med(samples["1 worker"]), med(samples["2 workers"])
+                targets.append(
+                    Target(
+                        6,
+                        f"collector alone, 16 envs x {steps}: 2 workers / 1",
+                        paired_ratio(samples, "2 workers", "1 worker"),
+                        1.0,
+                        note=f"{two:,.0f} / {one:,.0f} frames/s",
+                    )
+                )
+            torch.set_num_threads(1)
+            per_cpu_s = {
+                n: statistics.median(
+                    collector_frames_per_cpu_s(n, plan.a2c_frames)
+                    for _ in range(plan.rounds)
+                )
+                for n in (16, 8, 4, 2)
+            }
+            details["a2c_workers"]["collector_frames_per_cpu_s"] = per_cpu_s
+            details.setdefault("notes", []).append(
+                "6  one process's collector, frames per CPU second by envs per "
+                "process: "
+                + ", ".join(
+                    f"{n}: {v:,.0f} ({v / per_cpu_s[16]:.2f}x)"
+                    for n, v in per_cpu_s.items()
+                )
+            )
 
     details["load_end"] = load()
     details["minutes"] = round((time.perf_counter() - started) / 60, 1)
@@ -848,6 +976,7 @@ def render(targets: list[Target], details: dict, plan: Plan) -> str:
         lines.append(
             f"{t.item:<2} {t.name:<52} {measured:>9} {goal:>7}  {met:<5} {t.note}"
         )
+    lines += details.get("notes", [])
     return "\n".join(lines)
 
 
