@@ -88,6 +88,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import textwrap
 import warnings
 import zlib
 from collections.abc import Callable, Mapping, Sequence
@@ -809,8 +810,15 @@ def _save(fig, path: Path, title: str) -> Path:
             frameon=False,
         )
     rows = math.ceil(len(handles) / 3)
-    fig.suptitle(title, fontsize="medium")
-    fig.tight_layout(rect=(0, min(0.4, 0.05 * rows + 0.02), 1, 0.95))
+    # Wrapped to the figure's width (about 11 characters an inch at this size):
+    # a one-panel figure is too narrow for the title on one line.
+    lines = textwrap.wrap(title, width=max(20, int(fig.get_figwidth() * 11)))
+    fig.suptitle("\n".join(lines), fontsize="medium")
+    # each extra title line (about 0.19 inch) makes the figure taller
+    height = fig.get_figheight() + 0.19 * (len(lines) - 1)
+    fig.set_figheight(height)
+    top = 1.0 - (0.19 * len(lines) + 0.1) / height
+    fig.tight_layout(rect=(0, min(0.4, 0.05 * rows + 0.02), 1, top))
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
