@@ -267,12 +267,18 @@ class VAEEllipticalTransform(VAESurpriseTransform):
             inv
             - inv_u.unsqueeze(-1) * inv_u.unsqueeze(-2) / (1.0 + bonus)[..., None, None]
         )
-        if done is not None and done.any():
-            inv = torch.where(
-                done[..., None, None], self._fresh(done.shape, inv.device), inv
-            )
         self._inv_cov = inv
+        if done is not None and done.any():
+            self._restart(done)
         return bonus.to(phi.dtype)
+
+    def _restart(self, mask: torch.Tensor) -> None:
+        # The envs where ``mask`` is set start a new episode.
+        self._inv_cov = torch.where(
+            mask[..., None, None],
+            self._fresh(mask.shape, self._inv_cov.device),
+            self._inv_cov,
+        )
 
     def _done(self, next_tensordict: TensorDictBase, shape) -> torch.Tensor | None:
         done = next_tensordict.get(self.done_key, None)
@@ -294,12 +300,7 @@ class VAEEllipticalTransform(VAESurpriseTransform):
         if mask is None:
             self.reset_episodes()
         else:
-            mask = mask.reshape(self._inv_cov.shape[:-2]).bool()
-            self._inv_cov = torch.where(
-                mask[..., None, None],
-                self._fresh(mask.shape, self._inv_cov.device),
-                self._inv_cov,
-            )
+            self._restart(mask.reshape(self._inv_cov.shape[:-2]).bool())
         return tensordict_reset
 
     def _compute_bonus(
@@ -311,10 +312,7 @@ class VAEEllipticalTransform(VAESurpriseTransform):
         if self._in_env_step:
             bonus = self._bonus_and_update(loc, self._done(next_tensordict, shape))
         else:
-            time_dim = self.time_dim
-            names = next_tensordict.names if next_tensordict._has_names() else None
-            if time_dim is None and names is not None and "time" in names:
-                time_dim = names.index("time")
+            time_dim = self._time_dim(next_tensordict)
             if time_dim is None:
                 raise ValueError(
                     f"{type(self).__name__}: the episodic bonus needs time-ordered "
