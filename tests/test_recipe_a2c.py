@@ -130,6 +130,23 @@ def test_killed_and_resumed_run_logs_what_the_uninterrupted_run_logs(
     assert differing_logs(tmp_path / "whole", killed_dir) == []
 
 
+def test_a_run_killed_before_its_first_checkpoint_restarts_without_its_old_rows(
+    tmp_path,
+):
+    # killed before any checkpoint: logs on disk, no checkpoint.pt
+    args = [
+        "bonus=vae",
+        "collector.total_frames=384",
+        "checkpoint.interval_frames=10000",
+    ]
+    run_recipe(tmp_path / "whole", *args)
+    killed_dir = tmp_path / "killed"
+    run_recipe(killed_dir, *args)
+    (killed_dir / "checkpoint.pt").unlink()
+    run_recipe(killed_dir, *args)
+    assert differing_logs(tmp_path / "whole", killed_dir) == []
+
+
 def test_sigint_and_sigterm_save_a_checkpoint_and_exit_cleanly(tmp_path):
     for sig in (signal.SIGINT, signal.SIGTERM):
         run_dir = tmp_path / sig.name

@@ -219,7 +219,8 @@ def prepare_run(cfg, run_dir: str | os.PathLike) -> tuple[Path, dict[str, Any] |
     With ``cfg.resume`` ``auto`` (or ``true``) and a ``<run_dir>/checkpoint.pt``,
     loads it, refuses it if the experiment changed (:func:`config_differences`,
     naming each setting), and cuts the CSV logs at the checkpoint's frame so each
-    step stays logged once. ``resume=false`` refuses a directory that already holds
+    step stays logged once; without a checkpoint the run starts at frame 0, and the
+    rows a run killed before its first checkpoint left in ``<run_dir>/logs`` go. ``resume=false`` refuses a directory that already holds
     a checkpoint, so that nothing computed is overwritten. Writes
     ``config_resolved.yaml`` once the checks pass.
 
@@ -257,6 +258,10 @@ def prepare_run(cfg, run_dir: str | os.PathLike) -> tuple[Path, dict[str, Any] |
             f"resume=true but there is no checkpoint at {ckpt_path}; pass the run "
             "directory of the run to resume as hydra.run.dir=<dir>."
         )
+    else:
+        # A run killed before its first checkpoint left rows that this run, which
+        # starts from frame 0 with the same seed, logs again: drop them.
+        truncate_scalar_logs(run_dir / "logs", -1)
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config_resolved.yaml").write_text(OmegaConf.to_yaml(config))
     return ckpt_path, ckpt
