@@ -306,3 +306,29 @@ def test_a_threshold_counts_only_once_the_episode_window_is_full():
     plain = data[data["metric"] == "train/episode_return"]
     table = frames_to_threshold(plain, {"A": 1.0}, fractions=[0.5, 0.8])
     assert table["frames"].tolist() == [1000, 1000]
+
+
+def test_documented_results_show_a_recipe_its_own_learners_results(tmp_path):
+    from torchrl_surprise.experiments.minigrid import documented_results
+
+    task = "MiniGrid-MultiRoom-N3-S4-v0"
+    row = "{},{},500000,5,0.9,0.8,1.0,1.0\n"
+    for name, recipe, setting in [
+        ("n3s4", "a2c_minigrid", "vae"),
+        ("ppo_n3s4", "ppo_minigrid", "none"),
+    ]:
+        out = tmp_path / name
+        out.mkdir()
+        (out / "summary.csv").write_text(
+            "task,setting,budget,seeds,train_return_iqm,train_return_ci_low,"
+            "train_return_ci_high,train_success_iqm\n" + row.format(task, setting)
+        )
+        (out / "runs_meta.csv").write_text(
+            f'run_dir\n"runs/{recipe}/{name}/+setting={setting},seed=0"\n'
+        )
+    a2c = documented_results(task, 500_000, tmp_path, recipe="a2c_minigrid")
+    ppo = documented_results(task, 500_000, tmp_path, recipe="ppo_minigrid")
+    assert len(a2c) == 1 and "vae" in a2c[0] and "(n3s4)" in a2c[0]
+    assert len(ppo) == 1 and "none" in ppo[0] and "(ppo_n3s4)" in ppo[0]
+    assert len(documented_results(task, 500_000, tmp_path)) == 2
+    assert documented_results(task, 1_000_000, tmp_path, recipe="a2c_minigrid") == []

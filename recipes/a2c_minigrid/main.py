@@ -260,7 +260,12 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         f"success rate {stats.success_rate:.2f}, {fps:.0f} frames/s.\n"
         f"Learning curve: {curve}\nLogs: {run_dir / 'logs'}\nRun directory: {run_dir}"
     )
-    measured = documented_results(cfg.env.name, cfg.collector.total_frames)
+    measured = documented_results(
+        cfg.env.name,
+        cfg.collector.total_frames,
+        results_dir=Path(__file__).resolve().parents[2] / "docs" / "results",
+        recipe="a2c_minigrid",
+    )
     if measured:
         print(
             f"Measured on {cfg.env.name} at {cfg.collector.total_frames} frames "

@@ -16,6 +16,7 @@ from torchrl_surprise.experiments.collector import (
     worker_seed,
 )
 from torchrl_surprise.experiments.run import (
+    BONUS_SECTIONS,
     RESUMABLE_CHANGES,
     RESUME_MODES,
     Checkpointer,
@@ -38,9 +39,11 @@ from torchrl_surprise.experiments.run import (
     seed_everything,
     set_rng_state,
     truncate_scalar_logs,
+    unused_bonus_sections,
 )
 
 __all__ = [
+    "BONUS_SECTIONS",
     "RESUMABLE_CHANGES",
     "RESUME_MODES",
     "Checkpointer",
@@ -51,6 +54,7 @@ __all__ = [
     "ResumableMultiSyncCollector",
     "StopSignal",
     "config_differences",
+    "unused_bonus_sections",
     "find_scalar_log",
     "plot_scalar_logs",
     "resume_command",

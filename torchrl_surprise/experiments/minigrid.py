@@ -510,18 +510,37 @@ def load_bonus_model(transform, bonus: str, source: str | os.PathLike) -> int:
 
 
 def documented_results(
-    task: str, frames: int, results_dir: str | os.PathLike = "docs/results"
+    task: str,
+    frames: int,
+    results_dir: str | os.PathLike = "docs/results",
+    recipe: str | None = None,
 ) -> list[str]:
     """What the committed sweep results say about ``task`` at ``frames``, one line
     per setting (from each experiment's ``summary.csv`` whose budget is
     ``frames``), so a run's final message can show what other learners reach.
 
+    With ``recipe`` (``"a2c_minigrid"``, say), only experiments whose runs all came
+    from ``runs/<recipe>/`` (their ``runs_meta.csv``) count, so that a recipe shows
+    its own learner's results and not another learner's on the same task.
+
     Returns an empty list when nothing was measured at that budget.
+
+    Examples:
+        >>> documented_results("MiniGrid-MultiRoom-N3-S4-v0", 123, results_dir=".")
+        []
     """
     import csv
 
     lines = []
     for path in sorted(Path(results_dir).glob("*/summary.csv")):
+        if recipe is not None:
+            meta = path.parent / "runs_meta.csv"
+            if not meta.exists():
+                continue
+            with open(meta) as f:
+                run_dirs = [Path(row["run_dir"]).parts for row in csv.DictReader(f)]
+            if not run_dirs or any(p[:2] != ("runs", recipe) for p in run_dirs):
+                continue
         with open(path) as f:
             for row in csv.DictReader(f):
                 if row.get("task") != task or not row.get("budget"):

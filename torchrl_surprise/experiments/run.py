@@ -32,6 +32,7 @@ def _pickle_module_by_name(module: types.ModuleType):
 copyreg.pickle(type(torch.utils.deterministic), _pickle_module_by_name)
 
 __all__ = [
+    "BONUS_SECTIONS",
     "RESUMABLE_CHANGES",
     "RESUME_MODES",
     "Checkpointer",
@@ -40,6 +41,7 @@ __all__ = [
     "RNGState",
     "StopSignal",
     "config_differences",
+    "unused_bonus_sections",
     "find_scalar_log",
     "plot_scalar_logs",
     "resume_command",
@@ -152,6 +154,35 @@ def _flatten(config: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     return flat
 
 
+BONUS_SECTIONS: tuple[str, ...] = ("vae", "icm", "rnd")
+"""The sections under ``intrinsic`` that configure one bonus each."""
+
+
+def unused_bonus_sections(config: Mapping[str, Any]) -> tuple[str, ...]:
+    """The config sections a run with this config does not read: the whole
+    ``intrinsic`` section when ``bonus`` is ``"none"``, else the ``intrinsic.<name>``
+    sections of the other bonuses. A changed default there cannot change the run,
+    so resuming it is safe.
+
+    Examples:
+        >>> unused_bonus_sections({"bonus": "icm", "intrinsic": {"vae": {}, "icm": {}}})
+        ('intrinsic.vae',)
+        >>> unused_bonus_sections({"bonus": "none", "intrinsic": {"coef": 0.5}})
+        ('intrinsic',)
+    """
+    bonus = config.get("bonus")
+    intrinsic = config.get("intrinsic")
+    if bonus is None or not isinstance(intrinsic, Mapping):
+        return ()
+    if bonus == "none":
+        return ("intrinsic",)
+    return tuple(
+        f"intrinsic.{name}"
+        for name, value in intrinsic.items()
+        if name in BONUS_SECTIONS and name != bonus and isinstance(value, Mapping)
+    )
+
+
 def config_differences(
     saved: Mapping[str, Any],
     current: Mapping[str, Any],
@@ -218,7 +249,8 @@ def prepare_run(cfg, run_dir: str | os.PathLike) -> tuple[Path, dict[str, Any] |
     Sets ``torch.set_num_threads(cfg.torch_threads)`` and seeds with ``cfg.seed``.
     With ``cfg.resume`` ``auto`` (or ``true``) and a ``<run_dir>/checkpoint.pt``,
     loads it, refuses it if the experiment changed (:func:`config_differences`,
-    naming each setting), and cuts the CSV logs at the checkpoint's frame so each
+    naming each setting; the sections of bonuses the run does not use, from
+    :func:`unused_bonus_sections`, may change), and cuts the CSV logs at the checkpoint's frame so each
     step stays logged once; without a checkpoint the run starts at frame 0, and the
     rows a run killed before its first checkpoint left in ``<run_dir>/logs`` go. ``resume=false`` refuses a directory that already holds
     a checkpoint, so that nothing computed is overwritten. Writes
@@ -243,7 +275,11 @@ def prepare_run(cfg, run_dir: str | os.PathLike) -> tuple[Path, dict[str, Any] |
                 "it, or another hydra.run.dir to start a new run."
             )
         ckpt = load_checkpoint(ckpt_path)
-        diffs = config_differences(ckpt["config"], config)
+        diffs = config_differences(
+            ckpt["config"],
+            config,
+            allowed=RESUMABLE_CHANGES + unused_bonus_sections(ckpt["config"]),
+        )
         if diffs:
             raise ValueError(
                 f"Cannot resume {run_dir}: the experiment changed ("
