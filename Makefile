@@ -5,7 +5,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: install train test lint docs bench
+.PHONY: install train test lint docs bench figures
 
 install: $(STAMP)
 
@@ -25,6 +25,11 @@ test: $(STAMP)
 
 docs: $(STAMP)
 	$(PY) -m sphinx -W --keep-going -b html docs docs/_build/html
+
+# Every table and figure of docs/results recomputed from the committed per-run data
+# (each experiment's runs.csv; no run directory needed).
+figures: $(STAMP)
+	$(PY) -m torchrl_surprise.experiments.aggregate --all docs/results
 
 # The speed targets, one table of side-by-side ratios (benchmarks/README.md);
 # installs the optional `bench` extra (the peer, torch-ac) first. ARGS=--quick: smoke run.

@@ -11,6 +11,7 @@ labelled by its bonus (no overrides file), 2 seeds each, one of them killed at
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -332,3 +333,39 @@ def test_documented_results_show_a_recipe_its_own_learners_results(tmp_path):
     assert len(ppo) == 1 and "none" in ppo[0] and "(ppo_n3s4)" in ppo[0]
     assert len(documented_results(task, 500_000, tmp_path)) == 2
     assert documented_results(task, 1_000_000, tmp_path, recipe="a2c_minigrid") == []
+
+
+def test_all_regenerates_every_experiment_of_a_results_dir(sweep, tmp_path):
+    import shutil
+
+    # two experiments: the sweep's, and the same data aggregated at a budget
+    results = tmp_path / "results"
+    shutil.copytree(sweep["out"], results / "a")
+    b = results / "nested" / "b"
+    b.mkdir(parents=True)
+    for name in ("runs.csv", "runs_meta.csv"):
+        shutil.copy(results / "a" / name, b / name)
+    oracle = ["--oracle", str(sweep["oracle"]), "--reps", str(REPS)]
+    args = ["--from-data", str(b / "runs.csv"), *oracle, "--budget", "600"]
+    assert main([*args, "--out", str(b)]) == 0
+    tables = ("summary.csv", "probability_of_improvement.csv", "report.csv")
+    expected = {p: p.read_bytes() for p in results.glob("**/*.csv") if p.name in tables}
+    for path in expected:
+        if path.name != "summary.csv":  # it holds the budget to use
+            path.write_text("stale")
+        else:
+            os.utime(path, (0, 0))
+    assert main(["--all", str(results), *oracle]) == 0
+    assert all(p.stat().st_mtime > 0 for p in expected)
+    for path, content in expected.items():
+        assert path.read_bytes() == content, path
+    assert set(pd.read_csv(results / "nested" / "b" / "summary.csv")["budget"]) == {600}
+
+
+def test_all_refuses_a_dir_without_data_and_mixed_arguments(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        main(["--all", str(tmp_path)])
+    assert "no runs.csv" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["--all", str(tmp_path), "--out", str(tmp_path)])
+    assert "--all takes no" in capsys.readouterr().err

@@ -13,6 +13,10 @@ data alone, without the run directories::
         --from-data docs/results/n3s4/runs.csv --out docs/results/n3s4 \\
         --oracle docs/results/oracle/oracle_returns.csv
 
+``--all docs/results`` does that for every experiment under ``docs/results`` (each
+directory holding a ``runs.csv``, at the budget its ``summary.csv`` was written
+with); ``make figures`` runs it.
+
 Other options: ``--budget FRAMES`` (the frame count at which final performance is
 read; default: per task, the largest frame count that every run of the task
 reached), ``--reps`` (bootstrap replications, default 2000), ``--seed`` (of the
@@ -1109,7 +1113,14 @@ def _parser() -> argparse.ArgumentParser:
         type=Path,
         help="a runs.csv written before: recompute everything from it alone",
     )
-    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument(
+        "--all",
+        type=Path,
+        metavar="RESULTS_DIR",
+        help="regenerate every experiment under RESULTS_DIR (each <dir>/runs.csv, "
+        "at the budget of its summary.csv) from its committed data",
+    )
+    parser.add_argument("--out", type=Path, help="output directory")
     parser.add_argument("--budget", type=int, help="frames of final performance")
     parser.add_argument(
         "--oracle",
@@ -1130,8 +1141,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     """The command line (see the module description); returns the exit status."""
     parser = _parser()
     args = parser.parse_args(argv)
+    if args.all is not None:
+        if args.runs or args.from_data is not None or args.out is not None:
+            parser.error("--all takes no run directories, --from-data or --out")
+        return _regenerate_all(parser, args)
     if bool(args.runs) == (args.from_data is not None):
         parser.error("give run directories or --from-data RUNS_CSV (one of the two)")
+    if args.out is None:
+        parser.error("--out is required with run directories or --from-data")
     try:
         use_oracle = args.oracle is not None and str(args.oracle) != "none"
         oracle = read_oracle(args.oracle) if use_oracle else {}
@@ -1181,6 +1198,29 @@ def main(argv: Sequence[str] | None = None) -> int:
         for _, run in meta[meta["last_frame"].isna()].iterrows():
             print(f"No scalars logged yet, left out: {run['run_dir']}")
     print("Wrote " + ", ".join(str(p) for p in [runs_csv, *paths.values()]))
+    return 0
+
+
+def _regenerate_all(parser: argparse.ArgumentParser, args) -> int:
+    """``--all``: every ``runs.csv`` under the directory, recomputed in place."""
+    found = sorted(args.all.glob("**/runs.csv"))
+    if not found:
+        parser.error(f"no runs.csv under {args.all}")
+    for runs_csv in found:
+        argv = ["--from-data", str(runs_csv), "--out", str(runs_csv.parent)]
+        summary = runs_csv.with_name("summary.csv")
+        if summary.is_file():
+            # one budget for every task: the one the experiment was aggregated at
+            table = pd.read_csv(summary)
+            if "budget" not in table.columns:
+                parser.error(f"{summary} has no budget column")
+            budgets = table["budget"].dropna().unique()
+            if len(budgets) == 1:
+                argv += ["--budget", str(int(budgets[0]))]
+        argv += ["--oracle", str(args.oracle) if args.oracle else "none"]
+        argv += ["--reps", str(args.reps), "--seed", str(args.seed)]
+        print(f"== {runs_csv.parent}", flush=True)
+        main(argv)
     return 0
 
 
