@@ -25,8 +25,12 @@ from torchrl_surprise.experiments.heatmap import (
     make_layout_env,
     reachable_cells,
     render_layout,
+    solution_memory,
 )
-from torchrl_surprise.transforms import VAEPosteriorShiftTransform
+from torchrl_surprise.transforms import (
+    VAEEllipticalTransform,
+    VAEPosteriorShiftTransform,
+)
 
 ENV = "MiniGrid-MultiRoom-N3-S4-v0"
 VAE_CONFIG = {"latent_dim": 4, "hidden_dim": 16, "use_direction": True}
@@ -243,10 +247,101 @@ def test_clear_errors(tmp_path):
         load_bonus_transform(icm_run)
     with pytest.raises(ValueError, match="icm_run"):
         main([str(icm_run), "--out", str(tmp_path / "x.png")])
-    episodic = tmp_path / "elliptical_run"
-    episodic.mkdir()
-    write_checkpoint(
-        episodic / "checkpoint.pt", small_transform(), variant="elliptical"
+    with pytest.raises(ValueError, match="memory-steps must be >= 0"):
+        run_dir = tmp_path / "kl_run"
+        run_dir.mkdir()
+        write_checkpoint(run_dir / "checkpoint.pt", small_transform())
+        main(
+            [
+                str(run_dir),
+                "--out",
+                str(tmp_path / "x.png"),
+                "--memory-steps",
+                "0",
+                "-1",
+            ]
+        )
+
+
+def elliptical_by_hand(transform, images, directions, memory):
+    # phi^T C^-1 phi, C = ridge I + the memory's phi phi^T
+    vae = transform.vae
+    with torch.no_grad():
+        phi = vae.posterior(torch.as_tensor(images), torch.as_tensor(directions))[0]
+        past = vae.posterior(torch.as_tensor(memory[0]), torch.as_tensor(memory[1]))[0]
+    phi, past = phi.double(), past.double()
+    cov = transform.ridge * torch.eye(phi.shape[-1], dtype=torch.float64)
+    cov = cov + past.T @ past
+    return (phi * torch.linalg.solve(cov, phi.T).T).sum(-1)
+
+
+def test_elliptical_map_scores_each_cell_after_the_episode_memory(env):
+    transform = small_transform(VAEEllipticalTransform)
+    images, directions, cells = solution_memory(env, 6)
+    assert len(images) == 6 and env_untouched(env)
+    # the memory follows the oracle: each state is one step from the last
+    steps = np.abs(np.diff(np.concatenate([[env.unwrapped.agent_pos], cells]), axis=0))
+    assert (steps.sum(-1) <= 1).all()
+
+    # doors as generated: the by-hand observations below see the same grid
+    empty = bonus_grid(transform, env)
+    after = bonus_grid(transform, env, memory=(images, directions))
+    mask = np.isfinite(empty)
+    assert (np.isfinite(after) == mask).all()
+    # by hand on every reachable observation
+    base = env.unwrapped
+    ys, xs = np.nonzero(mask.any(-1))
+    queries = []
+    for x, y in zip(xs, ys):
+        for d in range(4):
+            base.agent_pos, base.agent_dir = (int(x), int(y)), d
+            obs = base.gen_obs()
+            queries.append((obs["image"], obs["direction"]))
+    env.reset(seed=0)
+    q_images = np.stack([q[0] for q in queries])
+    q_dirs = np.array([q[1] for q in queries])
+    no_memory = (images[:0], directions[:0])
+    np.testing.assert_allclose(
+        empty[ys, xs].reshape(-1),
+        elliptical_by_hand(transform, q_images, q_dirs, no_memory).numpy(),
+        rtol=1e-4,
     )
-    with pytest.raises(ValueError, match="elliptical_run.*no per-position map"):
-        load_bonus_transform(episodic)
+    np.testing.assert_allclose(
+        after[ys, xs].reshape(-1),
+        elliptical_by_hand(transform, q_images, q_dirs, (images, directions)).numpy(),
+        rtol=1e-4,
+    )
+    # a state of the memory is worth less after it than at an episode's start
+    seen = [(x, y, d) for (x, y), d in zip(cells, directions) if mask[y, x, d]]
+    assert seen
+    for x, y, d in seen:
+        assert after[y, x, d] < empty[y, x, d]
+    # the transform's own episodes are left empty
+    assert transform._inv_cov.numel() == 0
+
+
+def env_untouched(env):
+    base = env.unwrapped
+    return base.step_count == 0
+
+
+def test_cli_draws_an_elliptical_run_with_its_episode_memory(tmp_path, capsys):
+    run_dir = tmp_path / "elliptical_run"
+    run_dir.mkdir()
+    transform = small_transform(VAEEllipticalTransform, normalization="return_std")
+    write_checkpoint(run_dir / "checkpoint.pt", transform, variant="elliptical")
+    loaded, _, _ = load_bonus_transform(run_dir)
+    assert type(loaded) is VAEEllipticalTransform
+    out = tmp_path / "ell.png"
+    main([str(run_dir), "--out", str(out), "--open-doors", "--memory-steps", "0", "5"])
+    assert out.stat().st_size > 0
+    with open(out.with_suffix(".csv")) as f:
+        rows = list(csv.DictReader(f))
+    # one panel per memory length, the longer memory scoring lower on average
+    by_steps = {
+        r["memory_steps"]: float(r["mean_bonus"])
+        for r in rows
+        if r["category"] == "all"
+    }
+    assert set(by_steps) == {"0", "5"} and by_steps["5"] < by_steps["0"]
+    assert "first 0/5 steps of the shortest solution" in capsys.readouterr().out

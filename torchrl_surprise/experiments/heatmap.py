@@ -73,6 +73,7 @@ __all__ = [
     "plot_heatmaps",
     "reachable_cells",
     "render_layout",
+    "solution_memory",
 ]
 
 CATEGORIES: tuple[str, ...] = ("doorway", "near_goal", "door_in_view", "other")
@@ -200,7 +201,10 @@ def render_layout(env, *, open_doors: bool = False, tile_size: int = 32) -> np.n
 
 # ----------------------------------------------------------------------- bonus
 def observation_bonus(
-    transform, image: torch.Tensor | np.ndarray, direction: torch.Tensor | np.ndarray
+    transform,
+    image: torch.Tensor | np.ndarray,
+    direction: torch.Tensor | np.ndarray,
+    memory: tuple[torch.Tensor | np.ndarray, torch.Tensor | np.ndarray] | None = None,
 ) -> torch.Tensor:
     """The raw bonus of a batch of MiniGrid observations, through the public path.
 
@@ -210,10 +214,18 @@ def observation_bonus(
     bonuses. The transform's statistics are frozen during the call (then
     unfrozen if they were not frozen), so they are not updated.
 
+    An episodic bonus (:class:`~torchrl_surprise.transforms.VAEEllipticalTransform`)
+    depends on the states seen before in the episode: ``memory`` gives them, and
+    each of the ``N`` observations is scored as the next state of an episode that
+    went through ``memory`` (the transform walks ``K + 1`` time steps of ``N``
+    envs; its episodes start afresh before and after). Without ``memory``, the
+    episode starts at the observation. A per-state bonus ignores ``memory``.
+
     Args:
         transform: a bonus transform (e.g. :class:`~torchrl_surprise.VAESurpriseTransform`).
         image: ``uint8 [N, 7, 7, 3]`` object, colour and state ids.
         direction: ``int [N]`` in ``{0, 1, 2, 3}``.
+        memory: ``(images [K, 7, 7, 3], directions [K])``, the episode so far.
 
     Returns:
         ``float [N]``.
@@ -233,32 +245,45 @@ def observation_bonus(
     image = torch.as_tensor(np.asarray(image), dtype=torch.uint8)
     direction = torch.as_tensor(np.asarray(direction), dtype=torch.int64)
     n = image.shape[0]
-    # A leading time dimension of 1: normalization="return_std" refuses a batch
-    # without one (the raw bonus read here does not depend on it).
+    image, direction = image.unsqueeze(0), direction.unsqueeze(0)
+    if memory is not None:
+        past_image = torch.as_tensor(np.asarray(memory[0]), dtype=torch.uint8)
+        past_direction = torch.as_tensor(np.asarray(memory[1]), dtype=torch.int64)
+        k = past_image.shape[0]
+        image = torch.cat([past_image.unsqueeze(1).expand(k, n, -1, -1, -1), image])
+        direction = torch.cat([past_direction.unsqueeze(1).expand(k, n), direction])
+    steps = image.shape[0]
+    # A leading time dimension: normalization="return_std" and the episodic
+    # bonus need one (the raw bonus of a per-state bonus does not depend on it).
     td = TensorDict(
         {
             "next": {
-                "image": image.unsqueeze(0),
-                "direction": direction.unsqueeze(0),
-                "reward": torch.zeros(1, n, 1),
+                "image": image,
+                "direction": direction,
+                "reward": torch.zeros(steps, n, 1),
             }
         },
-        batch_size=[1, n],
+        batch_size=[steps, n],
         names=["time", None],
     )
+    episodic = hasattr(transform, "reset_episodes")
     was_frozen = getattr(transform, "frozen", True)
     if hasattr(transform, "freeze"):
         transform.freeze()
     try:
+        if episodic:
+            transform.reset_episodes()
         out = transform(td)
     finally:
+        if episodic:
+            transform.reset_episodes()
         if not was_frozen:
             transform.unfreeze()
     key = getattr(transform, "intrinsic_reward_key", "intrinsic_reward")
-    return out["next", key].reshape(n).float()
+    return out["next", key][-1].reshape(n).float()
 
 
-def bonus_grid(transform, env, *, open_doors: bool = False) -> np.ndarray:
+def bonus_grid(transform, env, *, open_doors: bool = False, memory=None) -> np.ndarray:
     """The raw bonus with the agent at every reachable cell, facing each direction.
 
     Places the agent of ``env``'s current layout on every cell of
@@ -272,6 +297,8 @@ def bonus_grid(transform, env, *, open_doors: bool = False) -> np.ndarray:
             uses it, ``"direction"``).
         env: a MiniGrid env (gymnasium, wrapped or not), reset to a layout.
         open_doors (bool): open and unlock every door first.
+        memory: the episode so far, for an episodic bonus
+            (:func:`observation_bonus`; :func:`solution_memory` gives one).
 
     Returns:
         ``float [H, W, 4]`` indexed ``[y, x, direction]``; NaN where the agent
@@ -293,9 +320,53 @@ def bonus_grid(transform, env, *, open_doors: bool = False) -> np.ndarray:
         images, directions = _observations(base, mask)
     grid = np.full((*mask.shape, 4), np.nan)
     if len(images):
-        bonus = observation_bonus(transform, images, directions)
+        bonus = observation_bonus(transform, images, directions, memory=memory)
         grid[mask] = bonus.numpy().reshape(-1, 4)
     return grid
+
+
+def solution_memory(env, steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The first ``steps`` states of the layout's shortest solution, as an episode
+    memory for an episodic bonus.
+
+    Follows the oracle's shortest action sequence
+    (:func:`~torchrl_surprise.envs.solve_minigrid`) from ``env``'s current state on
+    a copy of the env, and collects the observation after each action (the states
+    whose bonus an agent would have been paid, in order). ``env`` is not changed.
+
+    Args:
+        env: a MiniGrid env reset to a layout.
+        steps (int): how many states (fewer if the solution is shorter).
+
+    Returns:
+        ``(images uint8 [K, 7, 7, 3], directions int [K], cells int [K, 2])``,
+        the cells as ``(x, y)``.
+
+    Examples:
+        >>> env = make_layout_env("MiniGrid-DoorKey-5x5-v0", layout_seed=0)
+        >>> images, directions, cells = solution_memory(env, 3)
+        >>> images.shape, directions.shape, cells.shape
+        ((3, 7, 7, 3), (3,), (3, 2))
+    """
+    import copy
+
+    from torchrl_surprise.envs import solve_minigrid
+
+    if steps < 0:
+        raise ValueError(f"steps must be >= 0, got {steps}.")
+    actions = solve_minigrid(env).actions[:steps]
+    base = copy.deepcopy(env.unwrapped)
+    images, directions, cells = [], [], []
+    for action in actions:
+        obs, *_ = base.step(action)
+        images.append(obs["image"])
+        directions.append(obs["direction"])
+        cells.append(tuple(base.agent_pos))
+    return (
+        np.asarray(images, dtype=np.uint8).reshape(-1, 7, 7, 3),
+        np.asarray(directions, dtype=np.int64),
+        np.asarray(cells, dtype=np.int64).reshape(-1, 2),
+    )
 
 
 def door_views(env, *, open_doors: bool = False) -> np.ndarray:
@@ -499,12 +570,6 @@ def load_bonus_transform(run_dir_or_ckpt: str | os.PathLike):
             f"{path}: unknown intrinsic.vae.variant {variant!r}; expected one of "
             f"{tuple(VAE_VARIANTS)}."
         )
-    if variant == "elliptical":
-        raise ValueError(
-            f"{path}: the elliptical bonus of a state depends on the states seen "
-            "before it in the episode, so it has no per-position map; draw the "
-            "VAE's KL of a run with another intrinsic.vae.variant."
-        )
     vae = StateVAE.for_minigrid(
         latent_dim=vcfg["latent_dim"],
         hidden_dim=vcfg["hidden_dim"],
@@ -512,14 +577,24 @@ def load_bonus_transform(run_dir_or_ckpt: str | os.PathLike):
     )
     # The settings a state_dict is tied to (normalisation statistics); the
     # coefficient and its schedule do not change the raw bonus.
+    extra = {}
+    if variant == "elliptical":
+        extra = {
+            "ridge": vcfg.get("ridge", 0.1),
+            "global_bonus": vcfg.get("global_bonus", "none"),
+        }
     transform = VAE_VARIANTS[variant](
         vae,
         normalization=icfg.get("normalization", "none"),
         gamma=config.get("loss", {}).get("gamma", 0.99),
         clip=icfg.get("clip"),
+        **extra,
     )
     transform.load_state_dict(state)
     transform.freeze()
+    if hasattr(transform, "reset_episodes"):
+        # the training envs' episodes in progress: the map starts its own
+        transform.reset_episodes()
     frames = int(ckpt.get("frames", 0))
     return transform, dict(config), frames
 
@@ -574,6 +649,8 @@ def plot_heatmaps(
     shared_scale: bool = False,
     outlines: Mapping[str, Sequence[tuple[int, int]]] | None = None,
     alpha: float = 0.7,
+    unit: str = "nats",
+    paths: Sequence[Sequence[tuple[int, int]]] | None = None,
 ) -> Path:
     """Draws one panel per bonus grid over the rendered layout; writes a PNG.
 
@@ -592,6 +669,9 @@ def plot_heatmaps(
         outlines: cells ``(x, y)`` to outline, by what they hold (``"door"`` and
             ``"goal"`` have their own colours), so the overlay does not hide them.
         alpha (float): opacity of the overlay.
+        unit (str): the bonus's unit, on the colour bars.
+        paths: per panel, cells ``(x, y)`` to mark with a dot (an episode's
+            memory, :func:`solution_memory`).
 
     Returns:
         The path written.
@@ -613,6 +693,7 @@ def plot_heatmaps(
     import matplotlib.pyplot as plt
     from matplotlib.collections import PolyCollection
     from matplotlib.colors import Normalize
+    from matplotlib.lines import Line2D
     from matplotlib.patches import Patch, Rectangle
 
     if reduce not in ("max", "mean"):
@@ -644,7 +725,9 @@ def plot_heatmaps(
     fig, axes = plt.subplots(
         1, len(grids), figsize=(5.2 * len(grids), 4.6 * aspect + 0.8), squeeze=False
     )
-    for ax, panel, title in zip(axes[0], panels, titles):
+    if paths is not None and len(paths) != len(grids):
+        raise ValueError(f"{len(grids)} grids but {len(paths)} paths.")
+    for i, (ax, panel, title) in enumerate(zip(axes[0], panels, titles)):
         norm = Normalize(*(shared if shared_scale else limits(panel)))
         ax.imshow(background, extent=(0, width, height, 0), interpolation="nearest")
         if directions:
@@ -680,10 +763,12 @@ def plot_heatmaps(
                         linewidth=1.6,
                     )
                 )
+        for x, y in paths[i] if paths is not None else ():
+            ax.plot(x + 0.5, y + 0.5, "o", color="red", markersize=5)
         ax.set_title(title, fontsize=10)
         label = "bonus per direction" if directions else f"{reduce} over directions"
         fig.colorbar(artist, ax=ax, fraction=0.046, pad=0.03).set_label(
-            f"raw bonus (nats), {label}"
+            f"raw bonus ({unit}), {label}"
         )
     if suptitle:
         fig.suptitle(suptitle, fontsize=11)
@@ -692,6 +777,10 @@ def plot_heatmaps(
         for kind, cells in (outlines or {}).items()
         if cells
     ]
+    if paths is not None and any(paths):
+        handles.append(
+            Line2D([], [], marker="o", color="red", linestyle="", label="memory")
+        )
     if handles:
         fig.legend(handles=handles, loc="lower center", ncol=len(handles))
     fig.tight_layout(rect=(0, 0.05 if handles else 0, 1, 1))
@@ -747,6 +836,17 @@ def _parser() -> argparse.ArgumentParser:
         action="store_true",
         help="one colour scale for all panels",
     )
+    parser.add_argument(
+        "--memory-steps",
+        type=int,
+        nargs="+",
+        default=[0],
+        metavar="K",
+        help="for an episodic bonus (intrinsic.vae.variant=elliptical): score each "
+        "cell as the next state of an episode that took the first K steps of the "
+        "layout's shortest solution (default 0: an episode that starts there); "
+        "several values draw one panel per checkpoint and value",
+    )
     parser.add_argument("--tile-size", type=int, default=32)
     return parser
 
@@ -774,6 +874,14 @@ def main(argv: Sequence[str] | None = None) -> Path:
         )
     env_name = args.env or env_names.pop()
     env = make_layout_env(env_name, args.layout_seed)
+    if min(args.memory_steps) < 0:
+        raise ValueError(f"--memory-steps must be >= 0, got {args.memory_steps}.")
+    memories = []  # (steps, memory or None, cells)
+    for steps in args.memory_steps:
+        *memory, cells = solution_memory(env, steps)
+        cells = [tuple(c) for c in cells.tolist()]
+        memories.append((len(cells), memory if cells else None, cells))
+    memory_cells = max((m[2] for m in memories), key=len)
     reachable = reachable_cells(env, open_doors=args.open_doors)
     views = door_views(env, open_doors=args.open_doors)
     groups = {
@@ -790,12 +898,18 @@ def main(argv: Sequence[str] | None = None) -> Path:
     ]
     one_variant = len(set(variants)) == 1
     grids, titles, rows = [], [], []
-    for (src, transform, _, frames), variant in zip(loaded, variants):
-        grid = bonus_grid(transform, env, open_doors=args.open_doors)
+    panels = [
+        (*checkpoint, variant, memory)
+        for checkpoint, variant in zip(loaded, variants)
+        for memory in memories
+    ]
+    for src, transform, _, frames, variant, (steps, memory, _) in panels:
+        grid = bonus_grid(transform, env, open_doors=args.open_doors, memory=memory)
         grids.append(grid)
-        titles.append(
-            f"{frames:,} frames" if one_variant else f"{variant}, {frames:,} frames"
-        )
+        title = f"{frames:,} frames" if one_variant else f"{variant}, {frames:,} frames"
+        if len(memories) > 1:
+            title += f", memory {steps} steps"
+        titles.append(title)
         for name, stats in category_means(grid, groups).items():
             rows.append(
                 {
@@ -805,16 +919,28 @@ def main(argv: Sequence[str] | None = None) -> Path:
                     "env": env_name,
                     "layout_seed": args.layout_seed,
                     "open_doors": args.open_doors,
+                    "memory_steps": steps,
                     "category": name,
                     **stats,
                 }
             )
     doors = "doors open" if args.open_doors else "doors as generated"
+    if any(v == "elliptical" for v in variants):
+        lengths = "/".join(str(m[0]) for m in memories)
+        doors += (
+            f", episode memory: the first {lengths} steps of the shortest solution"
+            if memory_cells
+            else ", empty episode memory"
+        )
     bonus = f"VAE bonus {variants[0]}, " if one_variant else ""
     suptitle = (
         f"{env_name}, layout seed {args.layout_seed}\n"
         f"{bonus}{doors}, {'per direction' if args.directions else args.reduce + ' over directions'}"
     )
+    unit = "nats"
+    if "elliptical" in variants:
+        # phi^T C^-1 phi has no unit (times the KL's nats with global_bonus="kl")
+        unit = "phi'C^-1 phi" if one_variant else "nats; elliptical: phi'C^-1 phi"
     background = render_layout(
         env, open_doors=args.open_doors, tile_size=args.tile_size
     )
@@ -835,6 +961,10 @@ def main(argv: Sequence[str] | None = None) -> Path:
         directions=args.directions,
         shared_scale=args.shared_scale,
         outlines=outlines,
+        unit=unit,
+        paths=[[(x - x0, y - y0) for x, y in p[-1][2]] for p in panels]
+        if memory_cells
+        else None,
     )
     csv_path = png.with_suffix(".csv")
     with open(csv_path, "w", newline="") as f:
@@ -844,7 +974,7 @@ def main(argv: Sequence[str] | None = None) -> Path:
 
     print(
         suptitle.replace("\n", ", ")
-        + ": mean raw bonus (nats) by category of cells (max: mean of each cell's "
+        + f": mean raw bonus ({unit}) by category of cells (max: mean of each cell's "
         "max over directions) and of observations"
     )
     print(
