@@ -10,12 +10,20 @@ rendered grid, one panel per checkpoint (points of training)::
 
     python -m torchrl_surprise.experiments.heatmap RUN_DIR_OR_CKPT [...] \\
         --layout-seed 0 --out docs/results/heatmaps/n3s4.png \\
-        [--open-doors] [--reduce max|mean] [--directions] [--shared-scale]
+        [--open-doors] [--reduce max|mean] [--directions] [--shared-scale] \\
+        [--memory-steps K [K ...]]
 
-A run directory (written by ``recipes/a2c_minigrid/main.py`` with ``bonus=vae``)
-is read through its ``checkpoint.pt``; a run keeps only its latest checkpoint, so
+A run directory (written by ``recipes/a2c_minigrid/main.py`` or
+``recipes/ppo_minigrid/main.py`` with ``bonus=vae``) is read through its
+``checkpoint.pt``; a run keeps only its latest checkpoint, so
 to compare points of training copy checkpoints aside while it runs and pass the
 files. The env and the VAE are rebuilt from the checkpoint's config.
+
+**Episodic bonus.** The elliptical bonus (``intrinsic.vae.variant=elliptical``)
+of a state depends on the states before it in the episode: each cell is scored
+as the next state of an episode that took the first ``K`` steps of the layout's
+shortest solution (:func:`solution_memory`; ``K = 0``, the default, is an episode
+starting there), one panel per checkpoint and ``K``, the memory's cells marked.
 
 **Cells.** The agent is placed on the cells reachable from its start position by
 walking over cells it can stand on (empty, floor, goal, open doors). Doors stay
