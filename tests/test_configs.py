@@ -1,0 +1,61 @@
+"""Every sweep job of the recipes' experiment files composes into a config that the
+recipe accepts, with the setting it is labelled by (no run: Hydra's compose API)."""
+
+from __future__ import annotations
+
+import importlib.util
+import itertools
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+
+RECIPES = Path(__file__).resolve().parents[1] / "recipes"
+EXPERIMENTS = [
+    (recipe, path.stem)
+    for recipe in ("a2c_minigrid", "ppo_minigrid", "ddpg_mujoco")
+    for path in sorted((RECIPES / recipe / "experiment").glob("*.yaml"))
+]
+
+
+def recipe_check(recipe: str):
+    spec = importlib.util.spec_from_file_location(
+        f"{recipe}_utils", RECIPES / recipe / "utils.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.check_config
+
+
+def sweep_values(value) -> list[str]:
+    text = str(value)
+    if text.startswith("range("):
+        return [str(v) for v in range(*map(int, text[6:-1].split(",")))]
+    return text.split(",")
+
+
+@pytest.mark.parametrize(("recipe", "experiment"), EXPERIMENTS)
+def test_every_sweep_job_composes_and_passes_the_recipe_checks(recipe, experiment):
+    check_config = recipe_check(recipe)
+    with initialize_config_dir(config_dir=str(RECIPES / recipe), version_base=None):
+        base = [f"+experiment={experiment}"]
+        sweep = compose("config", overrides=base, return_hydra_config=True)
+        params = {k: sweep_values(v) for k, v in sweep.hydra.sweeper.params.items()}
+        assert params, f"{experiment}: no sweep"
+        jobs = [dict(zip(params, job)) for job in itertools.product(*params.values())]
+        for job in jobs:
+            cfg = compose(
+                "config", overrides=[*base, *(f"{k}={v}" for k, v in job.items())]
+            )
+            OmegaConf.to_container(cfg, resolve=True)  # every interpolation resolves
+            check_config(cfg)
+            assert cfg.experiment_name == experiment
+            if "+setting" in job:
+                assert cfg.setting == job["+setting"], "a setting file's label"
+            variants = OmegaConf.select(cfg, "intrinsic.vae.variant") is not None
+            if cfg.bonus == "vae" and "+setting" in job and variants:
+                # settings name the VAE variant they measure, never the default
+                path = RECIPES / recipe / "setting" / f"{job['+setting']}.yaml"
+                text = path.read_text()
+                assert "variant:" in text, f"{path.name} must name its VAE variant"
