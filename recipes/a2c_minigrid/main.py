@@ -56,7 +56,7 @@ from torchrl_surprise.experiments import (
 )
 from torchrl_surprise.experiments.minigrid import (
     EVAL_SEED_OFFSET,
-    documented_results,
+    documented_results_message,
     evaluate,
     load_bonus_model,
     rollout_metrics,
@@ -260,17 +260,14 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         f"success rate {stats.success_rate:.2f}, {fps:.0f} frames/s.\n"
         f"Learning curve: {curve}\nLogs: {run_dir / 'logs'}\nRun directory: {run_dir}"
     )
-    measured = documented_results(
+    measured = documented_results_message(
         cfg.env.name,
         cfg.collector.total_frames,
-        results_dir=Path(__file__).resolve().parents[2] / "docs" / "results",
-        recipe="a2c_minigrid",
+        Path(__file__).resolve().parents[2] / "docs" / "results",
+        "a2c_minigrid",
     )
     if measured:
-        print(
-            f"Measured on {cfg.env.name} at {cfg.collector.total_frames} frames "
-            "(docs/results, the oracle's return = 1):\n" + "\n".join(measured)
-        )
+        print(measured)
 
 
 if __name__ == "__main__":

@@ -68,7 +68,7 @@ from torchrl_surprise.experiments import (
     plot_scalar_logs,
     prepare_run,
 )
-from torchrl_surprise.experiments.minigrid import documented_results
+from torchrl_surprise.experiments.minigrid import documented_results_message
 
 # Sweep launchers pickle this script's task function for their worker processes,
 # where the module beside the script is not importable (submitit, Ray): it travels
@@ -288,17 +288,14 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         f"success rate {stats.success_rate:.2f}, {fps:.0f} frames/s.\n"
         f"Learning curve: {curve}\nLogs: {run_dir / 'logs'}\nRun directory: {run_dir}"
     )
-    measured = documented_results(
+    measured = documented_results_message(
         cfg.env.name,
         cfg.collector.total_frames,
-        results_dir=Path(__file__).resolve().parents[2] / "docs" / "results",
-        recipe="ppo_minigrid",
+        Path(__file__).resolve().parents[2] / "docs" / "results",
+        "ppo_minigrid",
     )
     if measured:
-        print(
-            f"Measured on {cfg.env.name} at {cfg.collector.total_frames} frames "
-            "(docs/results, the oracle's return = 1):\n" + "\n".join(measured)
-        )
+        print(measured)
 
 
 if __name__ == "__main__":

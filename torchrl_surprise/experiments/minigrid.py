@@ -63,6 +63,7 @@ __all__ = [
     "check_config",
     "check_workers",
     "documented_results",
+    "documented_results_message",
     "evaluate",
     "init_rl_starter",
     "load_bonus_model",
@@ -507,6 +508,25 @@ def load_bonus_model(transform, bonus: str, source: str | os.PathLike) -> int:
             f"(sizes in intrinsic.{bonus}.* must match the source run's): {err}"
         ) from err
     return int(ckpt.get("frames", 0))
+
+
+def documented_results_message(
+    task: str, frames: int, results_dir: str | os.PathLike, recipe: str
+) -> str:
+    """The lines of :func:`documented_results` under a header, for a recipe's final
+    message; ``""`` when nothing was measured at that budget.
+
+    Examples:
+        >>> documented_results_message("MiniGrid-DoorKey-5x5-v0", 123, ".", "a2c_minigrid")
+        ''
+    """
+    measured = documented_results(task, frames, results_dir, recipe=recipe)
+    if not measured:
+        return ""
+    return (
+        f"Measured on {task} at {frames} frames (docs/results, the oracle's "
+        "return = 1):\n" + "\n".join(measured)
+    )
 
 
 def documented_results(
