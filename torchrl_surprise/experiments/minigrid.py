@@ -525,7 +525,8 @@ def documented_results_message(
         return ""
     return (
         f"Measured on {task} at {frames} frames (docs/results, the oracle's "
-        "return = 1):\n" + "\n".join(measured)
+        f"return = 1; each label is recipes/{recipe}/setting/<label>.yaml, "
+        "vae = the paper's KL):\n" + "\n".join(measured)
     )
 
 
