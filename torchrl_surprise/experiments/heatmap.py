@@ -548,7 +548,7 @@ def load_bonus_transform(run_dir_or_ckpt: str | os.PathLike):
     """
     from torchrl_surprise import StateVAE
     from torchrl_surprise.experiments import load_checkpoint
-    from torchrl_surprise.experiments.minigrid import VAE_VARIANTS
+    from torchrl_surprise.experiments.minigrid import VAE_VARIANTS, vae_variant_kwargs
 
     path = Path(run_dir_or_ckpt)
     ckpt_path = path / "checkpoint.pt" if path.is_dir() else path
@@ -585,18 +585,12 @@ def load_bonus_transform(run_dir_or_ckpt: str | os.PathLike):
     )
     # The settings a state_dict is tied to (normalisation statistics); the
     # coefficient and its schedule do not change the raw bonus.
-    extra = {}
-    if variant == "elliptical":
-        extra = {
-            "ridge": vcfg.get("ridge", 0.1),
-            "global_bonus": vcfg.get("global_bonus", "none"),
-        }
     transform = VAE_VARIANTS[variant](
         vae,
         normalization=icfg.get("normalization", "none"),
         gamma=config.get("loss", {}).get("gamma", 0.99),
         clip=icfg.get("clip"),
-        **extra,
+        **vae_variant_kwargs(variant, vcfg),
     )
     transform.load_state_dict(state)
     transform.freeze()
@@ -884,12 +878,14 @@ def main(argv: Sequence[str] | None = None) -> Path:
     env = make_layout_env(env_name, args.layout_seed)
     if min(args.memory_steps) < 0:
         raise ValueError(f"--memory-steps must be >= 0, got {args.memory_steps}.")
+    # one search for the longest memory; each K takes its first K states
+    images, directions, cells = solution_memory(env, max(args.memory_steps))
     memories = []  # (steps, memory or None, cells)
     for steps in args.memory_steps:
-        *memory, cells = solution_memory(env, steps)
-        cells = [tuple(c) for c in cells.tolist()]
-        memories.append((len(cells), memory if cells else None, cells))
-    memory_cells = max((m[2] for m in memories), key=len)
+        k = min(steps, len(cells))
+        memory = (images[:k], directions[:k]) if k else None
+        memories.append((k, memory, [tuple(c) for c in cells[:k].tolist()]))
+    has_memory = any(m[0] for m in memories)
     reachable = reachable_cells(env, open_doors=args.open_doors)
     views = door_views(env, open_doors=args.open_doors)
     groups = {
@@ -937,7 +933,7 @@ def main(argv: Sequence[str] | None = None) -> Path:
         lengths = "/".join(str(m[0]) for m in memories)
         doors += (
             f", episode memory: the first {lengths} steps of the shortest solution"
-            if memory_cells
+            if has_memory
             else ", empty episode memory"
         )
     bonus = f"VAE bonus {variants[0]}, " if one_variant else ""
@@ -971,7 +967,7 @@ def main(argv: Sequence[str] | None = None) -> Path:
         outlines=outlines,
         unit=unit,
         paths=[[(x - x0, y - y0) for x, y in p[-1][2]] for p in panels]
-        if memory_cells
+        if has_memory
         else None,
     )
     csv_path = png.with_suffix(".csv")

@@ -58,6 +58,7 @@ from torchrl_surprise.transforms.stochasticity import (
 __all__ = [
     "BONUSES",
     "VAE_VARIANTS",
+    "vae_variant_kwargs",
     "MiniGridConvTrunk",
     "EVAL_SEED_OFFSET",
     "check_config",
@@ -92,6 +93,24 @@ VAE_VARIANTS = {
 }
 """``intrinsic.vae.variant`` -> the transform that computes the VAE bonus."""
 RND_KEY = "rnd_reward"
+
+
+def vae_variant_kwargs(variant: str, vae_cfg) -> dict:
+    """The keyword arguments a VAE variant's transform takes beyond the common
+    ones, read from the ``intrinsic.vae`` section of a config (a mapping).
+
+    Examples:
+        >>> vae_variant_kwargs("elliptical", {"ridge": 0.5})
+        {'ridge': 0.5, 'global_bonus': 'none'}
+        >>> vae_variant_kwargs("kl", {"ridge": 0.5})
+        {}
+    """
+    if variant != "elliptical":
+        return {}
+    return {
+        "ridge": vae_cfg.get("ridge", 0.1),
+        "global_bonus": vae_cfg.get("global_bonus", "none"),
+    }
 
 
 def check_config(cfg) -> None:
@@ -272,11 +291,7 @@ def make_bonus(cfg, action_spec, bonus: str):
             use_direction=icfg.vae.use_direction,
         )
         variant = icfg.vae.get("variant", "kl")
-        if variant == "elliptical":
-            common.update(
-                ridge=icfg.vae.get("ridge", 0.1),
-                global_bonus=icfg.vae.get("global_bonus", "none"),
-            )
+        common.update(vae_variant_kwargs(variant, icfg.vae))
         transform = VAE_VARIANTS[variant](vae, **common)
         loss = VAELoss(vae, kl_weight=icfg.vae.kl_weight)
     elif bonus == "icm":
