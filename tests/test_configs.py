@@ -59,3 +59,29 @@ def test_every_sweep_job_composes_and_passes_the_recipe_checks(recipe, experimen
                 path = RECIPES / recipe / "setting" / f"{job['+setting']}.yaml"
                 text = path.read_text()
                 assert "variant:" in text, f"{path.name} must name its VAE variant"
+
+
+@pytest.mark.parametrize("recipe", ["a2c_minigrid", "ppo_minigrid"])
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        (["intrinsic.update_every=0"], "intrinsic.update_every must be a positive"),
+        (["intrinsic.update_every=1.5"], "intrinsic.update_every must be a positive"),
+        (
+            [
+                "bonus=vae",
+                "intrinsic.vae.variant=info_gain",
+                "intrinsic.update_every=2",
+            ],
+            "set intrinsic.update_every=1",
+        ),
+    ],
+)
+def test_a_bonus_model_update_schedule_that_cannot_run_is_refused(
+    recipe, overrides, message
+):
+    check_config = recipe_check(recipe)
+    with initialize_config_dir(config_dir=str(RECIPES / recipe), version_base=None):
+        cfg = compose("config", overrides=overrides)
+    with pytest.raises(ValueError, match=message):
+        check_config(cfg)

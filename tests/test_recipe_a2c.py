@@ -112,14 +112,21 @@ def test_same_seed_same_curve(tmp_path):
 
 @pytest.mark.parametrize(
     "overrides",
-    [["bonus=vae", "env.stochasticity=2"], ["bonus=rnd"]],
-    ids=["vae-noise", "rnd"],
+    [["bonus=vae", "env.stochasticity=2", "intrinsic.update_every=3"], ["bonus=rnd"]],
+    ids=["vae-noise-every3", "rnd"],
 )
 def test_killed_and_resumed_run_logs_what_the_uninterrupted_run_logs(
     tmp_path, overrides
 ):
     total = "collector.total_frames=1024"
     run_recipe(tmp_path / "whole", *overrides, total)
+    if "intrinsic.update_every=3" in overrides:
+        # the VAE trains (and logs its losses) after rollouts 0, 3, 6, ... only
+        steps, _ = read_scalar_csv(
+            tmp_path / "whole" / "logs/a2c/scalars/bonus/loss_reconstruction.csv"
+        )
+        rollouts = [int(s) // 32 - 1 for s in steps]  # TINY: 4 envs x 8 frames
+        assert rollouts == list(range(0, 1024 // 32, 3))
     killed_dir = tmp_path / "killed"
     cmd = [sys.executable, str(MAIN), f"hydra.run.dir={killed_dir}", *TINY]
     killed = kill_after_checkpoint(

@@ -56,6 +56,7 @@ from torchrl_surprise.experiments import (
 )
 from torchrl_surprise.experiments.minigrid import (
     EVAL_SEED_OFFSET,
+    bonus_update_steps,
     documented_results_message,
     evaluate,
     load_bonus_model,
@@ -150,9 +151,6 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
     variant = cfg.intrinsic.vae.variant if cfg.bonus == "vae" else None
     bonus_after_update = variant == "info_gain"
 
-    # finetune=false: a transferred bonus model stays frozen.
-    bonus_steps = cfg.intrinsic.update_steps if cfg.intrinsic.finetune else 0
-
     stop = StopSignal()
 
     # ---- training loop ----------------------------------------------------------
@@ -169,6 +167,9 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         frames += data.numel()
         iteration = frames // data.numel() - 1
         stats.update(data)
+        # intrinsic.update_steps on every intrinsic.update_every-th rollout, else 0
+        # (always 0 for a frozen transferred model, finetune=false).
+        bonus_steps = bonus_update_steps(cfg, iteration)
 
         if bonus_after_update:
             # The information gain of this rollout's VAE update on each state.

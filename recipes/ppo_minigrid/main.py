@@ -45,6 +45,7 @@ from omegaconf import OmegaConf
 from tqdm import tqdm
 from utils import (
     EVAL_SEED_OFFSET,
+    bonus_update_steps,
     check_config,
     evaluate,
     load_bonus_model,
@@ -170,9 +171,6 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         return
     variant = cfg.intrinsic.vae.variant if cfg.bonus == "vae" else None
 
-    # finetune=false: a transferred bonus model stays frozen.
-    bonus_steps = cfg.intrinsic.update_steps if cfg.intrinsic.finetune else 0
-
     stop = StopSignal()
 
     # ---- training loop ----------------------------------------------------------
@@ -189,6 +187,9 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         frames += data.numel()
         iteration = frames // data.numel() - 1
         stats.update(data)
+        # intrinsic.update_steps on every intrinsic.update_every-th rollout, else 0
+        # (always 0 for a frozen transferred model, finetune=false).
+        bonus_steps = bonus_update_steps(cfg, iteration)
 
         if variant == "info_gain":
             # The bonus is the posterior shift of this batch's VAE update: the VAE

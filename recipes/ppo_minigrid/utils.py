@@ -8,6 +8,7 @@ from torchrl.objectives import ClipPPOLoss
 
 from torchrl_surprise.experiments.minigrid import (  # noqa: F401 (the recipe's builders)
     EVAL_SEED_OFFSET,
+    bonus_update_steps,
     evaluate,
     load_bonus_model,
     make_actor_critic,

@@ -61,6 +61,7 @@ __all__ = [
     "vae_variant_kwargs",
     "MiniGridConvTrunk",
     "EVAL_SEED_OFFSET",
+    "bonus_update_steps",
     "check_config",
     "check_workers",
     "documented_results",
@@ -153,6 +154,21 @@ def check_config(cfg) -> None:
         raise ValueError("loss.gamma and loss.gae_lambda must be in [0, 1].")
     if cfg.intrinsic.update_steps < 0 or cfg.intrinsic.warmup_frames < 0:
         raise ValueError("intrinsic.update_steps and warmup_frames must be >= 0.")
+    update_every = cfg.intrinsic.get("update_every", 1)
+    if not (isinstance(update_every, int) and update_every > 0):
+        raise ValueError(
+            f"intrinsic.update_every must be a positive integer, got {update_every!r}."
+        )
+    if (
+        update_every > 1
+        and cfg.bonus == "vae"
+        and cfg.intrinsic.vae.get("variant") == "info_gain"
+    ):
+        raise ValueError(
+            "intrinsic.vae.variant=info_gain is the change that training on a rollout "
+            "makes to the posterior of its states, so the VAE trains on every "
+            f"rollout: set intrinsic.update_every=1 (got {update_every})."
+        )
     if not math.isfinite(cfg.intrinsic.coef):
         raise ValueError(f"intrinsic.coef must be finite, got {cfg.intrinsic.coef}.")
     check_workers(cfg)
@@ -404,6 +420,28 @@ def make_collector(env, policy, cfg, total_frames: int):
 
 EVAL_SEED_OFFSET = 10_000
 """The evaluation envs are seeded ``seed + EVAL_SEED_OFFSET``: other episodes."""
+
+
+def bonus_update_steps(cfg, iteration: int) -> int:
+    """The bonus model's gradient steps after rollout ``iteration`` (from 0).
+
+    ``intrinsic.update_steps`` on every ``intrinsic.update_every``-th rollout
+    (absent from older configs: 1, every rollout), the first included; none on the
+    others and none at all for a transferred model kept frozen
+    (``intrinsic.finetune: false``). The count depends on the rollout's index only,
+    so a resumed run trains on the same rollouts as the uninterrupted one.
+
+    Examples:
+        >>> from omegaconf import OmegaConf
+        >>> cfg = OmegaConf.create({"intrinsic": {"update_steps": 2,
+        ...     "update_every": 4, "finetune": True}})
+        >>> [bonus_update_steps(cfg, i) for i in range(6)]
+        [2, 0, 0, 0, 2, 0]
+    """
+    icfg = cfg.intrinsic
+    if not icfg.finetune or iteration % icfg.get("update_every", 1):
+        return 0
+    return icfg.update_steps
 
 
 def train_bonus_model(bonus_loss, optim, data, steps: int, env_side=None):
