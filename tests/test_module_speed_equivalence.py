@@ -467,3 +467,98 @@ def test_vector_icm_loss_equals_reference(hidden, batch_shape):
         param_grads(icm, out["loss_forward"] + out["loss_inverse"]),
         param_grads(icm, ref),
     )
+
+
+@pytest.mark.parametrize("recipe", ["a2c_minigrid", "ppo_minigrid"])
+def test_the_recipes_losses_on_the_shared_trunk_equal_one_trunk_per_head(recipe):
+    """The recipes run the actor-critic's trunk once per update (``shared_trunk``)
+    and give the losses its heads; the two-stream advantage takes one pass of a
+    two-headed critic. Same advantages and the same gradients as the losses and
+    critics built on whole operators (one trunk pass per head)."""
+    import importlib.util
+    from pathlib import Path
+
+    from hydra import compose, initialize_config_dir
+    from torchrl.objectives import A2CLoss, ClipPPOLoss
+
+    from torchrl_surprise import IntrinsicValueLoss, TwoStreamAdvantage
+    from torchrl_surprise.experiments.minigrid import make_collector, shared_trunk
+
+    root = Path(__file__).resolve().parents[1] / "recipes" / recipe
+    spec = importlib.util.spec_from_file_location(f"{recipe}_utils", root / "utils.py")
+    utils = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(utils)
+    with initialize_config_dir(config_dir=str(root), version_base=None):
+        cfg = compose("config", overrides=["bonus=vae", "env.num_envs=4"])
+    torch.manual_seed(0)
+    env = utils.make_env(cfg, 4, seed=0)
+    bonus, _, _ = utils.make_bonus(cfg, env.action_spec, "vae")
+    ppo = recipe == "ppo_minigrid"
+    model, int_value = utils.make_actor_critic(env.action_spec, True, ppo)
+    make = utils.make_ppo if ppo else utils.make_a2c
+    loss, advantage, int_loss = make(cfg, model, int_value, bonus)
+    policy = model.get_policy_operator()
+    collector = make_collector(env, policy, cfg, total_frames=10 * 4 * 8)
+    data = next(iter(collector))
+    collector.shutdown()
+    with torch.no_grad():
+        data = bonus(data)
+    # the reference: whole operators, one trunk pass per head and critic
+    kwargs = dict(
+        entropy_coeff=cfg.loss.entropy_coef,
+        critic_coeff=cfg.loss.critic_coef,
+        loss_critic_type="l2",
+    )
+    if ppo:  # make_ppo's settings
+        kwargs.update(
+            clip_epsilon=cfg.loss.clip_epsilon,
+            clip_value=True,
+            normalize_advantage=bool(cfg.loss.get("normalize_advantage", False)),
+        )
+    ref_loss = (ClipPPOLoss if ppo else A2CLoss)(
+        policy, model.get_value_operator(), **kwargs
+    )
+    ref_advantage = TwoStreamAdvantage(
+        model.get_value_operator(),
+        int_value,
+        intrinsic_reward_key=advantage.intrinsic_reward_key,
+        coef=advantage.coef,
+        gamma=cfg.loss.gamma,
+        lmbda=cfg.loss.gae_lambda,
+    )
+    ref_int_loss = IntrinsicValueLoss(int_value, critic_coef=cfg.loss.critic_coef)
+
+    def step(fn):
+        model.zero_grad()
+        int_value.zero_grad()
+        total, adv = fn()
+        total.backward()
+        params = {
+            **dict(model.named_parameters()),
+            **dict(int_value.named_parameters()),
+        }
+        return adv, {k: p.grad.clone() for k, p in params.items() if p.grad is not None}
+
+    def ours():
+        with torch.no_grad():
+            td = advantage(data.clone())
+        td = shared_trunk(model)(td)
+        out = loss(td)
+        total = sum(v for k, v in out.items() if k.startswith("loss_"))
+        return total + int_loss(td)["loss_critic_int"], td["advantage"]
+
+    def reference():
+        with torch.no_grad():
+            td = ref_advantage(data.clone())
+        out = ref_loss(td)
+        total = sum(v for k, v in out.items() if k.startswith("loss_"))
+        return total + ref_int_loss(td)["loss_critic_int"], td["advantage"]
+
+    adv, grads = step(ours)
+    ref_adv, ref_grads = step(reference)
+    torch.testing.assert_close(adv, ref_adv)
+    assert grads.keys() == ref_grads.keys() and len(grads) > 0
+    trunk_keys = [k for k in grads if "net.0" in k]
+    assert trunk_keys and all(grads[k].abs().sum() > 0 for k in trunk_keys)
+    for k in grads:
+        torch.testing.assert_close(grads[k], ref_grads[k], rtol=1e-4, atol=1e-6)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 from tensordict import TensorDict
-from tensordict.nn import NormalParamExtractor, TensorDictModule
+from tensordict.nn import NormalParamExtractor, TensorDictModule, TensorDictSequential
 from torch import nn
 from torchrl.modules import ProbabilisticActor, TanhNormal
 from torchrl.objectives import A2CLoss, ClipPPOLoss
@@ -151,3 +151,19 @@ def test_the_intrinsic_critic_loss_trains_only_the_intrinsic_critic():
     assert IntrinsicValueLoss(value_int, reduction="none")(td)[
         "loss_critic_int"
     ].shape == (B, T, 1)
+
+
+@pytest.mark.parametrize("episodic", [False, True])
+def test_one_two_headed_critic_gives_what_two_critics_give(episodic):
+    value, value_int = critics()
+    td = batch()
+    two = TwoStreamAdvantage(value, value_int, coef=0.3, episodic=episodic)(td.clone())
+    both = TensorDictSequential(value, value_int)
+    one = TwoStreamAdvantage(both, None, coef=0.3, episodic=episodic)(td.clone())
+    for key in ["advantage", "advantage_ext", "advantage_int", "value_target"]:
+        torch.testing.assert_close(one[key], two[key])
+    torch.testing.assert_close(one["value_target_int"], two["value_target_int"])
+    torch.testing.assert_close(one["state_value_int"], two["state_value_int"])
+    # a network that writes one value only is refused by name
+    with pytest.raises(KeyError, match="state_value_int"):
+        TwoStreamAdvantage(value, None)(td.clone())

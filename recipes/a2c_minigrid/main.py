@@ -42,6 +42,7 @@ from utils import (
     make_bonus,
     make_collector,
     make_env,
+    shared_trunk,
 )
 
 from torchrl_surprise.experiments import (
@@ -93,6 +94,7 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
     use_int_critic = cfg.intrinsic.intrinsic_critic and bonus_transform is not None
     model, int_value = make_actor_critic(env.action_spec, use_int_critic)
     policy = model.get_policy_operator()
+    trunk = shared_trunk(model)
     loss_module, advantage, int_value_loss = make_a2c(
         cfg, model, int_value, bonus_transform
     )
@@ -184,6 +186,8 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
             # Step 3: advantages: GAE on the (mixed) reward, or the two streams
             # (A_ext + coef * A_int, TwoStreamAdvantage).
             data = advantage(data)
+        # The shared trunk once, with gradients: the losses' heads read its features.
+        data = trunk(data)
         loss_td = loss_module(data)
         loss = (
             loss_td["loss_objective"] + loss_td["loss_critic"] + loss_td["loss_entropy"]

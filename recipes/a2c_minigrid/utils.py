@@ -12,6 +12,7 @@ from torchrl_surprise.experiments.minigrid import (  # noqa: F401 (the recipe's 
     make_bonus,
     make_collector,
     make_env,
+    shared_trunk,
 )
 
 
@@ -21,8 +22,10 @@ def make_a2c(cfg, model, intrinsic_value, bonus_transform):
     Returns ``(loss, advantage, intrinsic_value_loss or None)``.
     """
     loss = A2CLoss(
-        actor_network=model.get_policy_operator(),
-        critic_network=model.get_value_operator(),
+        # The heads: the training loop runs the shared trunk once before the
+        # losses (shared_trunk; TorchRL's single call of a common module).
+        actor_network=model.get_policy_head(),
+        critic_network=model.get_value_head(),
         entropy_coeff=cfg.loss.entropy_coef,
         critic_coeff=cfg.loss.critic_coef,
         loss_critic_type="l2",

@@ -56,6 +56,7 @@ from utils import (
     make_minibatch_buffer,
     make_ppo,
     rollout_metrics,
+    shared_trunk,
     train_bonus_model,
 )
 
@@ -113,6 +114,7 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         env.action_spec, use_int_critic, return_log_prob=True
     )
     policy = model.get_policy_operator()
+    trunk = shared_trunk(model)
     loss_module, advantage, int_value_loss = make_ppo(
         cfg, model, int_value, bonus_transform
     )
@@ -212,6 +214,9 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         minibatch_logs = []
         for _ in range(cfg.loss.epochs):
             for batch in buffer:
+                # The shared trunk once, with gradients: the losses' heads read
+                # its features.
+                batch = trunk(batch)
                 loss_td = loss_module(batch)
                 loss = (
                     loss_td["loss_objective"]

@@ -17,6 +17,7 @@ from torchrl_surprise.experiments.minigrid import (  # noqa: F401 (the recipe's 
     make_collector,
     make_env,
     rollout_metrics,
+    shared_trunk,
     train_bonus_model,
 )
 from torchrl_surprise.experiments.minigrid import check_config as check_common
@@ -53,8 +54,10 @@ def make_ppo(cfg, model, intrinsic_value, bonus_transform):
     Returns ``(loss, advantage, intrinsic_value_loss or None)``.
     """
     loss = ClipPPOLoss(
-        actor_network=model.get_policy_operator(),
-        critic_network=model.get_value_operator(),
+        # The heads: the training loop runs the shared trunk once before the
+        # losses (shared_trunk; TorchRL's single call of a common module).
+        actor_network=model.get_policy_head(),
+        critic_network=model.get_value_head(),
         clip_epsilon=cfg.loss.clip_epsilon,
         entropy_coeff=cfg.loss.entropy_coef,
         critic_coeff=cfg.loss.critic_coef,

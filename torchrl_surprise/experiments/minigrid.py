@@ -75,6 +75,7 @@ __all__ = [
     "make_collector",
     "make_env",
     "rollout_metrics",
+    "shared_trunk",
     "train_bonus_model",
 ]
 
@@ -360,9 +361,13 @@ def make_advantage(cfg, model, intrinsic_value, bonus_transform):
             average_gae=False,
         )
         return advantage, None
+    # One critic with both value heads on the shared trunk: one pass of the trunk
+    # over the batch's states and next states gives all four values.
+    trunk, int_head = intrinsic_value.module[0], intrinsic_value.module[-1]
+    both = TensorDictSequential(trunk, model.get_value_head(), int_head)
     advantage = TwoStreamAdvantage(
-        model.get_value_operator(),
-        intrinsic_value,
+        both,
+        None,
         intrinsic_reward_key=bonus_transform.normalized_reward_key
         or bonus_transform.intrinsic_reward_key,
         # The transform's coefficient and schedule: coef means one thing.
@@ -371,8 +376,24 @@ def make_advantage(cfg, model, intrinsic_value, bonus_transform):
         lmbda=cfg.loss.gae_lambda,
         episodic=cfg.intrinsic.episodic,
     )
-    value_loss = IntrinsicValueLoss(intrinsic_value, critic_coef=cfg.loss.critic_coef)
+    # The head only: it reads the trunk's features that the training loop computes
+    # once, with gradients, for every loss (shared_trunk).
+    value_loss = IntrinsicValueLoss(int_head, critic_coef=cfg.loss.critic_coef)
     return advantage, value_loss
+
+
+def shared_trunk(model) -> TensorDictModule:
+    """The actor-critic's trunk, to run once per update before the losses.
+
+    The recipes' losses (TorchRL's ``A2CLoss`` / ``ClipPPOLoss`` and
+    :class:`~torchrl_surprise.IntrinsicValueLoss`) are given the policy and value
+    heads only, which read the trunk's ``"hidden"`` features from the batch: the
+    training loop runs ``data = trunk(data)`` with gradients first, so the trunk
+    runs once per update instead of once per head, and its gradient is the sum of
+    the heads' as before. (The batch's ``"hidden"`` from the rollout was computed
+    without gradients; the trunk call replaces it.)
+    """
+    return model.module[0]
 
 
 def make_collector(env, policy, cfg, total_frames: int):

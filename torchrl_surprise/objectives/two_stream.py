@@ -47,10 +47,16 @@ class TwoStreamAdvantage(nn.Module):
     * ``"advantage"`` = ``advantage_ext + coef * advantage_int``, what the policy
       losses read.
 
+    With ``intrinsic_value_network=None``, ``value_network`` is one critic with
+    two heads on a shared trunk that writes both values: one forward pass over the
+    batch's states and next states (stacked) then gives the four values, where two
+    critics take four passes of the trunk.
+
     Args:
-        value_network: the extrinsic critic, writing ``"state_value"``.
+        value_network: the extrinsic critic, writing ``"state_value"`` (and
+            ``intrinsic_value_key`` if ``intrinsic_value_network`` is ``None``).
         intrinsic_value_network: the intrinsic critic, writing
-            ``intrinsic_value_key``.
+            ``intrinsic_value_key``; ``None``: ``value_network`` writes it.
         intrinsic_reward_key (NestedKey): the bonus under ``"next"``: the raw
             ``"intrinsic_reward"`` or a transform's normalised key.
         coef (float or callable): the mixing coefficient, or a callable returning
@@ -78,12 +84,20 @@ class TwoStreamAdvantage(nn.Module):
         >>> torch.allclose(td["advantage"],
         ...                td["advantage_ext"] + 0.5 * td["advantage_int"])
         True
+
+        One critic, two heads, one pass (the same advantages):
+
+        >>> from tensordict.nn import TensorDictSequential
+        >>> both = TensorDictSequential(value, value_int)
+        >>> td_one = TwoStreamAdvantage(both, None, coef=0.5)(td.clone())
+        >>> torch.allclose(td_one["advantage"], td["advantage"])
+        True
     """
 
     def __init__(
         self,
         value_network: TensorDictModuleBase,
-        intrinsic_value_network: TensorDictModuleBase,
+        intrinsic_value_network: TensorDictModuleBase | None,
         *,
         intrinsic_reward_key: NestedKey = "intrinsic_reward",
         coef: float | Callable[[], float] = 1.0,
@@ -95,8 +109,16 @@ class TwoStreamAdvantage(nn.Module):
         intrinsic_value_key: NestedKey = "state_value_int",
     ):
         super().__init__()
+        # One critic for both values: it runs here, once, and TorchRL's GAE reads
+        # the extrinsic values it wrote.
+        self.joint_value_network = (
+            value_network if intrinsic_value_network is None else None
+        )
         self.extrinsic = GAE(
-            gamma=gamma, lmbda=lmbda, value_network=value_network, average_gae=False
+            gamma=gamma,
+            lmbda=lmbda,
+            value_network=None if intrinsic_value_network is None else value_network,
+            average_gae=False,
         )
         self.extrinsic.set_keys(advantage="advantage_ext")
         self.intrinsic_value_network = intrinsic_value_network
@@ -122,13 +144,17 @@ class TwoStreamAdvantage(nn.Module):
                 f"('next', {self.intrinsic_reward_key!r}); run the bonus transform "
                 "on the batch first."
             )
-        tensordict = self.extrinsic(tensordict)
-        value = self.intrinsic_value_network(tensordict.copy()).get(
-            self.intrinsic_value_key
-        )
-        next_value = self.intrinsic_value_network(tensordict.get("next").copy()).get(
-            self.intrinsic_value_key
-        )
+        if self.joint_value_network is not None:
+            value, next_value = self._joint_values(tensordict)
+            tensordict = self.extrinsic(tensordict)
+        else:
+            tensordict = self.extrinsic(tensordict)
+            value = self.intrinsic_value_network(tensordict.copy()).get(
+                self.intrinsic_value_key
+            )
+            next_value = self.intrinsic_value_network(
+                tensordict.get("next").copy()
+            ).get(self.intrinsic_value_key)
         if self.episodic:
             done = tensordict.get(("next", "done"))
             terminated = tensordict.get(("next", "terminated"), done)
@@ -152,6 +178,34 @@ class TwoStreamAdvantage(nn.Module):
             tensordict.get("advantage_ext") + self.current_coef() * advantage_int,
         )
         return tensordict
+
+    def _joint_values(
+        self, tensordict: TensorDictBase
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """One pass of the two-headed critic over the states and next states.
+
+        Writes the extrinsic values where TorchRL's GAE reads them
+        (``"state_value"`` and ``("next", "state_value")``) and returns the
+        intrinsic ones.
+        """
+        network = self.joint_value_network
+        in_keys = network.in_keys
+        both = torch.stack(
+            [tensordict.select(*in_keys), tensordict.get("next").select(*in_keys)], 0
+        )
+        out = network(both)
+        value_key = self.extrinsic.tensor_keys.value
+        for key in (value_key, self.intrinsic_value_key):
+            if key not in out.keys(include_nested=True):
+                raise KeyError(
+                    f"TwoStreamAdvantage without an intrinsic_value_network: the "
+                    f"value network must write {value_key!r} and "
+                    f"{self.intrinsic_value_key!r}; it wrote {list(out.keys(True))}."
+                )
+        value, next_value = out.get(value_key).unbind(0)
+        tensordict.set(value_key, value)
+        tensordict.set(("next", value_key), next_value)
+        return out.get(self.intrinsic_value_key).unbind(0)
 
 
 class IntrinsicValueLoss(LossModule):
