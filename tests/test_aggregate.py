@@ -369,3 +369,40 @@ def test_all_refuses_a_dir_without_data_and_mixed_arguments(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["--all", str(tmp_path), "--out", str(tmp_path)])
     assert "--all takes no" in capsys.readouterr().err
+
+
+def test_a_setting_at_several_noise_levels_gets_one_label_per_level_and_a_figure(
+    sweep, tmp_path
+):
+    # the same setting (config label) at levels 0 and 2, 4 seeds each: one label
+    # per level, and levels.png with one line from the two summary rows
+    for level, final in [(0, 0.9), (2, 0.3)]:
+        for seed in range(4):
+            config = {
+                "seed": seed,
+                "bonus": "vae",
+                "setting": "vae_ell",
+                "env": {"name": MINIGRID, "stochasticity": level},
+                "collector": {"total_frames": 10000},
+            }
+            rows = [(s, final * ORACLE_RETURN * s / 10000) for s in STEPS[1:]]
+            write_run(
+                tmp_path / "runs" / f"{level}_{seed}",
+                config,
+                None,
+                {"train/episode_return": rows},
+            )
+    runs = find_runs([tmp_path / "runs"])
+    assert sorted({r.setting for r in runs}) == [
+        "vae_ell",
+        "vae_ell,env.stochasticity=2",
+    ]
+    out = tmp_path / "out"
+    argv = [str(tmp_path / "runs"), "--out", str(out), "--reps", str(REPS)]
+    assert main([*argv, "--oracle", str(sweep["oracle"])]) == 0
+    assert summary_row(out, MINIGRID, "vae_ell,env.stochasticity=2")[
+        "train_return_iqm"
+    ] == pytest.approx(0.3)
+    assert (out / "levels.png").stat().st_size > 0
+    # a results dir without levels has no such figure
+    assert not (sweep["out"] / "levels.png").exists()

@@ -79,6 +79,9 @@ output say.
   curve stops where its shortest run stops. The dotted line marks the budget.
 - ``performance_profiles.png``: per task, rliable's performance profiles (the
   fraction of runs whose final score exceeds tau) with 95% bootstrap bands.
+- ``levels.png`` (only when some setting ran at a noise level other than 0, its
+  label then ending in ``,env.stochasticity=L``): per task, the final return's IQM
+  and CI against the noise level, one line per setting (Figure 2).
 
 Every bootstrap is seeded by ``--seed`` and the name of what it estimates, so a
 rerun writes identical CSVs, and adding a setting leaves the intervals of the
@@ -108,6 +111,7 @@ __all__ = [
     "EPISODES_METRIC",
     "EPISODE_WINDOW",
     "FRACTIONS",
+    "LEVEL_KEY",
     "METRICS",
     "RunInfo",
     "aggregate",
@@ -119,12 +123,14 @@ __all__ = [
     "main",
     "normalize_returns",
     "plot_curves",
+    "plot_levels",
     "plot_profiles",
     "read_oracle",
     "report_table",
     "status_text",
     "runs_metadata",
     "setting_label",
+    "split_level",
     "summarize",
 ]
 
@@ -149,6 +155,8 @@ EPISODES_METRIC = "train/episodes"
 EPISODE_WINDOW = 100
 
 _RUN_KEYS = ["task", "setting", "seed"]
+#: The override that names a run's noise level in its setting label.
+LEVEL_KEY = "env.stochasticity"
 # Overrides that name the run (which seed, which task, which sweep) or how Hydra
 # ran it, not what was trained: they are left out of a setting's label.
 _NOT_SETTING = {"seed", "env.name", "experiment", "resume"}
@@ -180,7 +188,9 @@ class RunInfo:
 def setting_label(config: Mapping, overrides: Sequence[str] | None) -> str:
     """The label of a run's setting: what tells it apart from the other runs.
 
-    The config's top-level ``setting`` when it is a non-empty string; else the
+    The config's top-level ``setting`` when it is a non-empty string (followed by
+    ``,env.stochasticity=L`` for a run at a noise level ``L`` other than 0: the
+    same setting at another level is another point of Figure 2); else the
     Hydra overrides minus those naming the run (``seed``, ``env.name``,
     ``+experiment``, ``resume``, ``hydra.*``), sorted and joined with ``,``; else
     the config's ``bonus``.
@@ -198,10 +208,13 @@ def setting_label(config: Mapping, overrides: Sequence[str] | None) -> str:
         'vae'
         >>> setting_label({"bonus": "vae", "setting": "vae_zscore"}, ["bonus=vae"])
         'vae_zscore'
+        >>> setting_label({"setting": "icm", "env": {"stochasticity": 2}}, None)
+        'icm,env.stochasticity=2'
     """
     setting = config.get("setting")
     if isinstance(setting, str) and setting:
-        return setting
+        level = (config.get("env") or {}).get("stochasticity") or 0
+        return f"{setting},{LEVEL_KEY}={level}" if level else setting
     kept = []
     for override in overrides or ():
         key = override.split("=", 1)[0].lstrip("+~")
@@ -894,6 +907,66 @@ def plot_curves(
     return _save(fig, Path(path), title)
 
 
+def split_level(setting: str) -> tuple[str, int]:
+    """A setting label's base setting and noise level (0 when it names none).
+
+    Examples:
+        >>> split_level("icm,env.stochasticity=2"), split_level("icm")
+        (('icm', 2), ('icm', 0))
+    """
+    base, sep, level = setting.partition(f",{LEVEL_KEY}=")
+    return (base, int(level)) if sep else (setting, 0)
+
+
+def plot_levels(summary: pd.DataFrame, path: str | os.PathLike) -> Path | None:
+    """Per task, the final return (IQM, 95% CI) against the noise level (Figure 2).
+
+    One line per base setting that has runs at a noise level other than 0
+    (:func:`split_level`), from ``summary.csv``'s ``train_return`` columns; level 0
+    is the base setting's own row. Returns ``None`` (and writes nothing) when no
+    setting names a level.
+    """
+    rows = summary.assign(
+        base=[split_level(s)[0] for s in summary["setting"]],
+        level=[split_level(s)[1] for s in summary["setting"]],
+    )
+    noisy = set(rows.loc[rows["level"] > 0, "base"])
+    rows = rows[rows["base"].isin(noisy)]
+    if rows.empty:
+        return None
+    tasks = sorted(rows["task"].unique())
+    colors = _setting_colors(sorted(noisy))
+    fig, axes = _figure(len(tasks))
+    for ax, task in zip(axes, tasks):
+        task_rows = rows[rows["task"] == task]
+        for base, points in task_rows.groupby("base", sort=True):
+            points = points.sort_values("level")
+            iqm = points["train_return_iqm"].to_numpy(float)
+            low = points["train_return_ci_low"].to_numpy(float)
+            high = points["train_return_ci_high"].to_numpy(float)
+            seeds = points["seeds"].min()
+            ax.errorbar(
+                points["level"],
+                iqm,
+                yerr=[iqm - low, high - iqm],
+                color=colors[base],
+                marker="o",
+                capsize=3,
+                label=f"{base} ({seeds}+ seeds)",
+            )
+        ax.set_xticks(sorted(task_rows["level"].unique()))
+        ax.set_title(task, fontsize="medium")
+        ax.set_xlabel(f"noise level ({LEVEL_KEY})")
+        ax.set_ylabel(_score_label(bool(task_rows["normalized"].any())))
+        ax.grid(True, alpha=0.2)
+    budget = ", ".join(str(int(b)) for b in sorted(rows["budget"].unique()))
+    title = (
+        f"train episode return at {budget} frames against the noise level: IQM "
+        "over seeds, 95% stratified-bootstrap CI (rliable)"
+    )
+    return _save(fig, Path(path), title)
+
+
 def _score_distribution(scores: np.ndarray, taus: np.ndarray) -> np.ndarray:
     # rliable's ``score_distributions`` (the fraction of runs scoring above tau),
     # vectorised over tau.
@@ -1067,7 +1140,8 @@ def aggregate(
 
     ``summary.csv``, ``report.csv`` (its short form, for reports),
     ``frames_to_threshold.csv``, ``probability_of_improvement.csv``,
-    ``curves.png`` and ``performance_profiles.png`` (see the module description).
+    ``curves.png`` and ``performance_profiles.png`` (see the module description),
+    and ``levels.png`` when settings were run at several noise levels.
 
     Returns:
         The path of each output, by file name.
@@ -1094,6 +1168,9 @@ def aggregate(
     paths["performance_profiles.png"] = plot_profiles(
         data, out / "performance_profiles.png", oracle, budget, reps, seed
     )
+    levels = plot_levels(tables["summary.csv"], out / "levels.png")
+    if levels is not None:
+        paths["levels.png"] = levels
     return paths
 
 
