@@ -392,6 +392,15 @@ def shared_trunk(model) -> TensorDictModule:
     runs once per update instead of once per head, and its gradient is the sum of
     the heads' as before. (The batch's ``"hidden"`` from the rollout was computed
     without gradients; the trunk call replaces it.)
+
+    Examples:
+        >>> from torchrl.data import Categorical
+        >>> model, _ = make_actor_critic(Categorical(7), intrinsic_critic=False)
+        >>> trunk = shared_trunk(model)
+        >>> trunk.in_keys, trunk.out_keys
+        (['image'], ['hidden'])
+        >>> model.get_value_head().in_keys
+        ['hidden']
     """
     return model.module[0]
 
