@@ -13,7 +13,8 @@ Every update, in this order:
    intrinsic return instead and the advantage is ``A_ext + coef * A_int``
    (:class:`torchrl_surprise.TwoStreamAdvantage`, :class:`IntrinsicValueLoss`);
 4. the bonus model (VAE, ICM or RND predictor) takes ``update_steps`` gradient
-   steps on the states of D, which is then discarded (no replay).
+   steps on the states of D, which is then discarded (no replay); with
+   ``intrinsic.update_every`` k > 1 (the default is 4) only on every k-th D.
 
 Run: ``python recipes/a2c_minigrid/main.py bonus=vae env.name=MiniGrid-MultiRoom-N3-S4-v0``
 Sweep: ``python recipes/a2c_minigrid/main.py -m +experiment=n3s4`` (rerun it to resume).
