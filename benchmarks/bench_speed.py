@@ -6,7 +6,9 @@ same machine load), the median over rounds of the per-round ratio. The load
 average is recorded with each measurement.
 
 1. Bonus overhead in the A2C recipe: frames/s with ``bonus=vae|icm|rnd`` over
-   ``bonus=none`` (recipe defaults, ``recipes/a2c_minigrid``).
+   ``bonus=none`` (recipe defaults, ``recipes/a2c_minigrid``), and beside them the
+   VAE bonus trained on every rollout (the committed studies' setting), on every
+   8th, and never (an untrained VAE: the bonus's own cost).
 2. DDPG (``recipes/ddpg_mujoco``, Hopper-v5): the recipe's ``time/updates_per_s``
    (its whole loop, collection included) over a bare eager-PyTorch DDPG update of
    the same sizes (OurDDPG's loop: 256-256 MLPs, batch 256, Adam, soft target
@@ -59,7 +61,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -73,6 +75,14 @@ DDPG_MAIN = ROOT / "recipes" / "ddpg_mujoco" / "main.py"
 GIB = 1024**3
 MEMORY_LIMIT = 24 * GIB
 BONUSES = ("vae", "icm", "rnd")
+# item 1, beside the defaults: the VAE bonus trained on every rollout (the committed
+# studies' setting), less often, and never (an untrained VAE: what the bonus itself
+# costs); label -> overrides
+VAE_SCHEDULES = {
+    "vae, update_every=1": ["intrinsic.update_every=1"],
+    "vae, update_every=8": ["intrinsic.update_every=8"],
+    "vae, untrained": ["intrinsic.update_steps=0"],
+}
 PEER_ENVS = ("MiniGrid-MultiRoom-N3-S4-v0", "MiniGrid-DoorKey-8x8-v0")
 MINIGRID_PIPELINE_ENVS = ("MiniGrid-DoorKey-8x8-v0", "MiniGrid-MultiRoom-N3-S4-v0")
 MUJOCO_PIPELINE_ENVS = ("Hopper-v5", "HalfCheetah-v5")
@@ -188,10 +198,16 @@ class Target:
 
 # ---- items 1, 3 and 6: the A2C recipe ---------------------------------------------
 def a2c_recipe(
-    bonus: str, env_name: str | None, frames: int, tmp: Path, workers: int = 1
+    bonus: str,
+    env_name: str | None,
+    frames: int,
+    tmp: Path,
+    workers: int = 1,
+    extra: Sequence[str] = (),
 ) -> Sample:
     run_dir = tmp / f"a2c_{bonus}_{len(list(tmp.iterdir()))}"
     overrides = [
+        *extra,
         f"bonus={bonus}",
         f"collector.total_frames={frames}",
         f"eval.interval_frames={10 * frames}",
@@ -662,18 +678,19 @@ def main(argv: list[str] | None = None) -> dict:
         if 1 in args.items or 5 in args.items:
             print("[1] A2C recipe (defaults): bonus vs none, frames/s", flush=True)
             names = ["none", *BONUSES]
-            samples = interleave(
-                {
-                    b: lambda b=b: a2c_recipe(b, None, plan.a2c_frames, tmp)
-                    for b in names
-                },
-                plan.rounds,
-            )
+            setups = {
+                b: lambda b=b: a2c_recipe(b, None, plan.a2c_frames, tmp) for b in names
+            }
+            for label, extra in VAE_SCHEDULES.items():
+                setups[label] = lambda extra=extra: a2c_recipe(
+                    "vae", None, plan.a2c_frames, tmp, extra=extra
+                )
+            samples = interleave(setups, plan.rounds)
             details["a2c_bonus"] = {
                 b: {"frames_per_s": [s.value for s in v], "load1": [s.load1 for s in v]}
                 for b, v in samples.items()
             }
-            for b in BONUSES:
+            for b in [*BONUSES, *VAE_SCHEDULES]:
                 targets.append(
                     Target(
                         1,
