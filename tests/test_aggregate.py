@@ -335,6 +335,32 @@ def test_documented_results_show_a_recipe_its_own_learners_results(tmp_path):
     assert documented_results(task, 1_000_000, tmp_path, recipe="a2c_minigrid") == []
 
 
+def test_documented_results_show_each_setting_once_at_the_runs_noise_level(tmp_path):
+    from torchrl_surprise.experiments.minigrid import documented_results
+
+    task = "MiniGrid-MultiRoom-N3-S4-v0"
+    header = (
+        "task,setting,budget,seeds,train_return_iqm,train_return_ci_low,"
+        "train_return_ci_high,train_success_iqm\n"
+    )
+    experiments = {
+        "a_main": [("icm", 0.36)],
+        "b_cost": [("icm", 0.36), ("icm_every4", 0.38)],
+        "c_noise": [("icm", 0.34), ("icm,env.stochasticity=2", 0.27)],
+    }
+    for name, rows in experiments.items():
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "summary.csv").write_text(
+            header + "".join(f'{task},"{s}",500000,5,{v},0,1,1\n' for s, v in rows)
+        )
+    noise_free = documented_results(task, 500_000, tmp_path)
+    assert [line.split()[0] for line in noise_free] == ["icm", "icm_every4"]
+    assert "0.36" in noise_free[0] and "(a_main)" in noise_free[0]
+    level2 = documented_results(task, 500_000, tmp_path, stochasticity=2)
+    assert len(level2) == 1 and "icm,env.stochasticity=2" in level2[0]
+    assert documented_results(task, 500_000, tmp_path, stochasticity=3) == []
+
+
 def test_all_regenerates_every_experiment_of_a_results_dir(sweep, tmp_path):
     import shutil
 

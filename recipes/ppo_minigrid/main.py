@@ -299,6 +299,7 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         cfg.collector.total_frames,
         Path(__file__).resolve().parents[2] / "docs" / "results",
         "ppo_minigrid",
+        stochasticity=cfg.env.stochasticity,
     )
     if measured:
         print(measured)

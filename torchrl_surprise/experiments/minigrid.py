@@ -594,7 +594,11 @@ def load_bonus_model(transform, bonus: str, source: str | os.PathLike) -> int:
 
 
 def documented_results_message(
-    task: str, frames: int, results_dir: str | os.PathLike, recipe: str
+    task: str,
+    frames: int,
+    results_dir: str | os.PathLike,
+    recipe: str,
+    stochasticity: int = 0,
 ) -> str:
     """The lines of :func:`documented_results` under a header, for a recipe's final
     message; ``""`` when nothing was measured at that budget.
@@ -603,7 +607,9 @@ def documented_results_message(
         >>> documented_results_message("MiniGrid-DoorKey-5x5-v0", 123, ".", "a2c_minigrid")
         ''
     """
-    measured = documented_results(task, frames, results_dir, recipe=recipe)
+    measured = documented_results(
+        task, frames, results_dir, recipe=recipe, stochasticity=stochasticity
+    )
     if not measured:
         return ""
     return (
@@ -618,6 +624,7 @@ def documented_results(
     frames: int,
     results_dir: str | os.PathLike = "docs/results",
     recipe: str | None = None,
+    stochasticity: int = 0,
 ) -> list[str]:
     """What the committed sweep results say about ``task`` at ``frames``, one line
     per setting (from each experiment's ``summary.csv`` whose budget is
@@ -625,7 +632,9 @@ def documented_results(
 
     With ``recipe`` (``"a2c_minigrid"``, say), only experiments whose runs all came
     from ``runs/<recipe>/`` (their ``runs_meta.csv``) count, so that a recipe shows
-    its own learner's results and not another learner's on the same task.
+    its own learner's results and not another learner's on the same task. Only the
+    settings run at the noise level ``stochasticity`` count, and a setting shown by
+    one experiment (the first by name) is not repeated by another.
 
     Returns an empty list when nothing was measured at that budget.
 
@@ -635,7 +644,9 @@ def documented_results(
     """
     import csv
 
-    lines = []
+    from torchrl_surprise.experiments.aggregate import split_level
+
+    lines, shown = [], set()
     for path in sorted(Path(results_dir).glob("*/summary.csv")):
         if recipe is not None:
             meta = path.parent / "runs_meta.csv"
@@ -651,8 +662,12 @@ def documented_results(
                     continue
                 if abs(float(row["budget"]) - frames) > 0.01 * frames:
                     continue
+                level = split_level(row["setting"])[1]
+                if level != stochasticity or row["setting"] in shown:
+                    continue
+                shown.add(row["setting"])
                 lines.append(
-                    f"  {row['setting']:<14} return / oracle {float(row['train_return_iqm']):.2f} "
+                    f"  {row['setting']:<24} return / oracle {float(row['train_return_iqm']):.2f} "
                     f"[{float(row['train_return_ci_low']):.2f}, "
                     f"{float(row['train_return_ci_high']):.2f}] (IQM, 95% CI), success "
                     f"{float(row['train_success_iqm']):.2f}, {row['seeds']} seeds "
