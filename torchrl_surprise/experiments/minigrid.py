@@ -160,15 +160,15 @@ def check_config(cfg) -> None:
         raise ValueError(
             f"intrinsic.update_every must be a positive integer, got {update_every!r}."
         )
-    if (
-        update_every > 1
-        and cfg.bonus == "vae"
-        and cfg.intrinsic.vae.get("variant") == "info_gain"
-    ):
+    variant = cfg.intrinsic.vae.get("variant") if cfg.bonus == "vae" else None
+    if update_every > 1 and variant in ("info_gain", "lagged_kl"):
+        # info_gain: the change that training on a rollout makes to its states'
+        # posterior; lagged_kl: the copy is refreshed right after a training step,
+        # so with sparse steps it would mostly equal the VAE (a bonus of 0).
         raise ValueError(
-            "intrinsic.vae.variant=info_gain is the change that training on a rollout "
-            "makes to the posterior of its states, so the VAE trains on every "
-            f"rollout: set intrinsic.update_every=1 (got {update_every})."
+            f"intrinsic.vae.variant={variant} compares the VAE with itself before "
+            "its last updates, so it trains on every rollout: set "
+            f"intrinsic.update_every=1 (got {update_every})."
         )
     if not math.isfinite(cfg.intrinsic.coef):
         raise ValueError(f"intrinsic.coef must be finite, got {cfg.intrinsic.coef}.")
