@@ -910,12 +910,22 @@ def plot_curves(
 def split_level(setting: str) -> tuple[str, int]:
     """A setting label's base setting and noise level (0 when it names none).
 
+    The level is the label's ``env.stochasticity=L`` entry wherever it stands (a
+    label made of overrides sorts it among them).
+
     Examples:
         >>> split_level("icm,env.stochasticity=2"), split_level("icm")
         (('icm', 2), ('icm', 0))
+        >>> split_level("bonus=vae,env.stochasticity=3,intrinsic.coef=0.1")
+        ('bonus=vae,intrinsic.coef=0.1', 3)
     """
-    base, sep, level = setting.partition(f",{LEVEL_KEY}=")
-    return (base, int(level)) if sep else (setting, 0)
+    entries = setting.split(",")
+    prefix = f"{LEVEL_KEY}="
+    levels = [e for e in entries if e.startswith(prefix)]
+    if not levels:
+        return setting, 0
+    base = ",".join(e for e in entries if not e.startswith(prefix))
+    return base, int(levels[0][len(prefix) :])
 
 
 def plot_levels(summary: pd.DataFrame, path: str | os.PathLike) -> Path | None:
@@ -926,10 +936,10 @@ def plot_levels(summary: pd.DataFrame, path: str | os.PathLike) -> Path | None:
     is the base setting's own row. Returns ``None`` (and writes nothing) when no
     setting names a level.
     """
-    rows = summary.assign(
-        base=[split_level(s)[0] for s in summary["setting"]],
-        level=[split_level(s)[1] for s in summary["setting"]],
+    base, level = (
+        zip(*map(split_level, summary["setting"])) if len(summary) else ((), ())
     )
+    rows = summary.assign(base=list(base), level=list(level))
     noisy = set(rows.loc[rows["level"] > 0, "base"])
     rows = rows[rows["base"].isin(noisy)]
     if rows.empty:

@@ -363,8 +363,8 @@ def make_advantage(cfg, model, intrinsic_value, bonus_transform):
         return advantage, None
     # One critic with both value heads on the shared trunk: one pass of the trunk
     # over the batch's states and next states gives all four values.
-    trunk, int_head = intrinsic_value.module[0], intrinsic_value.module[-1]
-    both = TensorDictSequential(trunk, model.get_value_head(), int_head)
+    int_head = intrinsic_value.module[-1]
+    both = TensorDictSequential(shared_trunk(model), model.get_value_head(), int_head)
     advantage = TwoStreamAdvantage(
         both,
         None,
