@@ -252,6 +252,52 @@ def test_from_data_regenerates_identical_tables(sweep, tmp_path):
         assert (out / name).stat().st_size > 0 and (tmp_path / name).stat().st_size > 0
 
 
+def test_a_sweep_aggregated_in_parts_equals_it_aggregated_at_once(sweep, tmp_path):
+    # part 1 (the MiniGrid runs) committed; part 2 (the HalfCheetah runs) added to
+    # it later: the same runs.csv, metadata and tables as the whole sweep at once
+    runs, oracle = sweep["root"] / "runs", ["--oracle", str(sweep["oracle"])]
+    common = [*oracle, "--reps", str(REPS)]
+    part = tmp_path / "part"
+    assert main([str(runs / "minigrid"), "--out", str(part), *common]) == 0
+    assert set(read(part, "summary.csv")["task"]) == {MINIGRID}
+    whole = tmp_path / "whole"
+    argv = [str(runs / "cheetah"), "--from-data", str(part / "runs.csv")]
+    assert main([*argv, "--out", str(whole), *common]) == 0
+    for name in ("runs.csv", "runs_meta.csv", "summary.csv", "report.csv"):
+        assert (whole / name).read_bytes() == (sweep["out"] / name).read_bytes(), name
+    # in place, and again: a rerun replaces each run by itself
+    for _ in range(2):
+        argv = [str(runs / "cheetah"), "--from-data", str(part / "runs.csv")]
+        assert main([*argv, "--out", str(part), *common]) == 0
+        assert (part / "runs.csv").read_bytes() == (whole / "runs.csv").read_bytes()
+
+
+def test_adding_a_shorter_run_than_the_committed_one_is_refused(
+    sweep, tmp_path, capsys
+):
+    out = tmp_path / "out"
+    out.mkdir()
+    for name in ("runs.csv", "runs_meta.csv"):
+        (out / name).write_bytes((sweep["out"] / name).read_bytes())
+    before = (out / "runs.csv").read_bytes()
+    # seed 0 of cheetah_vae again, killed at 4000 frames where the data has 10000
+    cheetah_run(tmp_path / "again", "cheetah_vae", 0, 4000)
+    argv = [str(tmp_path / "again"), "--from-data", str(out / "runs.csv")]
+    with pytest.raises(SystemExit):
+        main([*argv, "--out", str(out), "--oracle", "none", "--reps", str(REPS)])
+    err = capsys.readouterr().err
+    assert "seed 0" in err and "cheetah_vae_0" in err and "reached frame 4000" in err
+    assert "10000" in err and "longer run" in err
+    assert (out / "runs.csv").read_bytes() == before
+    # the same run further on replaces it; every other run is kept
+    cheetah_run(tmp_path / "further", "cheetah_vae", 1, 10000)
+    argv = [str(tmp_path / "further"), "--from-data", str(out / "runs.csv")]
+    assert main([*argv, "--out", str(out), "--oracle", "none", "--reps", "10"]) == 0
+    meta = read(out, "runs_meta.csv").set_index(["task", "setting", "seed"])
+    assert len(meta) == 12 and meta.loc[(CHEETAH, "cheetah_vae", 1), "finished"]
+    assert meta.loc[(CHEETAH, "cheetah_vae", 1), "last_frame"] == 10000
+
+
 def test_a_run_short_of_the_budget_is_left_out_of_final_scores(sweep, tmp_path):
     argv = [str(sweep["root"] / "runs" / "cheetah"), "--out", str(tmp_path)]
     assert main([*argv, "--budget", "8500", "--reps", str(REPS)]) == 0

@@ -13,6 +13,15 @@ data alone, without the run directories::
         --from-data docs/results/n3s4/runs.csv --out docs/results/n3s4 \\
         --oracle docs/results/oracle/oracle_returns.csv
 
+Given both, the run directories' runs are added to the committed data (a run of
+the same task, setting and seed replaced by one that got at least as far, see
+:func:`merge_run_data`): a sweep too long for one machine runs in parts, e.g.
+``python recipes/ddpg_mujoco/main.py -m +experiment=figure3 seed=0`` here and
+``seed=1`` elsewhere, each part aggregated into the same results::
+
+    python -m torchrl_surprise.experiments.aggregate runs/ddpg_mujoco/figure3 \\
+        --from-data docs/results/figure3/runs.csv --out docs/results/figure3
+
 ``--all docs/results`` does that for every experiment under ``docs/results`` (each
 directory holding a ``runs.csv``, at the budget its ``summary.csv`` was written
 with); ``make figures`` runs it.
@@ -121,6 +130,7 @@ __all__ = [
     "frames_to_threshold",
     "improvement_probabilities",
     "main",
+    "merge_run_data",
     "normalize_returns",
     "plot_curves",
     "plot_levels",
@@ -398,6 +408,97 @@ def runs_metadata(runs: Sequence[RunInfo]) -> pd.DataFrame:
     for column in ("total_frames", "last_frame"):
         meta[column] = meta[column].astype("Int64")
     return meta
+
+
+def merge_run_data(
+    earlier: pd.DataFrame,
+    earlier_meta: pd.DataFrame | None,
+    data: pd.DataFrame,
+    meta: pd.DataFrame,
+    *,
+    source: str = "the earlier data",
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Adds runs to data written before: a sweep continued elsewhere or later.
+
+    A sweep too long for one machine or one session runs in parts (a subset of
+    its jobs, e.g. ``seed=0`` on the command line); each part's run directories
+    are aggregated together with the ``runs.csv`` (and ``runs_meta.csv``) the
+    earlier parts left. A run of ``data`` (same task, setting and seed) replaces
+    the earlier one when it got at least as far; one that got less far is
+    refused, so that nothing already computed is lost.
+
+    Args:
+        earlier (pd.DataFrame): a ``runs.csv`` table, as :func:`extract_run_data`
+            writes it.
+        earlier_meta (pd.DataFrame | None): its ``runs_meta.csv`` table, or
+            ``None`` when it has none (its runs are then listed with their last
+            logged frame only).
+        data (pd.DataFrame): the new runs' table (:func:`extract_run_data`).
+        meta (pd.DataFrame): the new runs' :func:`runs_metadata`.
+        source (str): how to name ``earlier`` in an error.
+
+    Returns:
+        The merged data and metadata tables, sorted by task, setting and seed.
+
+    Raises:
+        ValueError: a new run got less far than the same run in ``earlier``.
+
+    Examples:
+        >>> import pandas as pd
+        >>> def run(seed, last):
+        ...     return pd.DataFrame({"task": "T", "setting": "s", "seed": seed,
+        ...         "frames": [0, last], "metric": "train/episode_return",
+        ...         "value": [0.0, 1.0]})
+        >>> def meta(seed, last):
+        ...     return pd.DataFrame({"task": ["T"], "setting": ["s"], "seed": [seed],
+        ...         "total_frames": [100], "last_frame": [last], "finished": [True],
+        ...         "run_dir": [f"runs/{seed}"]})
+        >>> merged, merged_meta = merge_run_data(run(0, 100), meta(0, 100),
+        ...                                      run(1, 100), meta(1, 100))
+        >>> merged_meta["seed"].tolist()
+        [0, 1]
+        >>> merge_run_data(merged, merged_meta, run(1, 50), meta(1, 50))
+        Traceback (most recent call last):
+        ...
+        ValueError: task T, setting s, seed 1: runs/1 reached frame 50, the earlier data 100: ...
+    """
+    columns = [*_RUN_KEYS, "frames", "metric", "value"]
+    for name, table in (("earlier", earlier), ("data", data)):
+        missing = sorted(set(columns) - set(table.columns))
+        if missing:
+            raise ValueError(f"{name} has no column {', '.join(missing)}")
+    if earlier_meta is None:
+        reach = earlier.groupby(_RUN_KEYS, as_index=False)["frames"].max()
+        earlier_meta = reach.rename(columns={"frames": "last_frame"}).assign(
+            total_frames=pd.NA, finished=pd.NA, run_dir=source
+        )[meta.columns]
+    old_reach = earlier.groupby(_RUN_KEYS)["frames"].max()
+    new_reach = data.groupby(_RUN_KEYS)["frames"].max()
+    run_dirs = meta.set_index(_RUN_KEYS)["run_dir"]
+    replaced = run_dirs.index
+    for key in replaced.intersection(old_reach.index):
+        # a run directory that logged nothing yet reached no frame at all
+        reached = new_reach.get(key, -1)
+        if reached < old_reach[key]:
+            task, setting, seed = key
+            raise ValueError(
+                f"task {task}, setting {setting}, seed {seed}: {run_dirs[key]} "
+                f"reached frame {reached}, {source} {old_reach[key]}: it would "
+                "replace a longer run; aggregate without that run directory"
+            )
+
+    def kept(table: pd.DataFrame) -> pd.DataFrame:
+        return table[~table.set_index(_RUN_KEYS).index.isin(replaced)]
+
+    def merged(old: pd.DataFrame, new: pd.DataFrame) -> pd.DataFrame:
+        table = pd.concat([kept(old), new], ignore_index=True)
+        # stable: each run's rows keep their order
+        return table.sort_values(_RUN_KEYS, kind="mergesort").reset_index(drop=True)
+
+    merged_meta = merged(earlier_meta, meta)
+    for column in ("total_frames", "last_frame"):
+        merged_meta[column] = merged_meta[column].astype("Int64")
+    return merged(earlier, data)[columns], merged_meta
 
 
 def read_oracle(path: str | os.PathLike) -> dict[str, float]:
@@ -1198,7 +1299,8 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--from-data",
         type=Path,
-        help="a runs.csv written before: recompute everything from it alone",
+        help="a runs.csv written before: recompute everything from it alone, or "
+        "with run directories, add their runs to it (merge_run_data)",
     )
     parser.add_argument(
         "--all",
@@ -1232,25 +1334,33 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.runs or args.from_data is not None or args.out is not None:
             parser.error("--all takes no run directories, --from-data or --out")
         return _regenerate_all(parser, args)
-    if bool(args.runs) == (args.from_data is not None):
-        parser.error("give run directories or --from-data RUNS_CSV (one of the two)")
+    if not args.runs and args.from_data is None:
+        parser.error("give run directories, --from-data RUNS_CSV, or both")
     if args.out is None:
         parser.error("--out is required with run directories or --from-data")
     try:
         use_oracle = args.oracle is not None and str(args.oracle) != "none"
         oracle = read_oracle(args.oracle) if use_oracle else {}
-        if args.from_data is not None:
+        if args.from_data is not None and not args.from_data.is_file():
+            raise FileNotFoundError(f"{args.from_data} does not exist")
+        if not args.runs:
             runs_csv = args.from_data
-            if not runs_csv.is_file():
-                raise FileNotFoundError(f"{runs_csv} does not exist")
         else:
             runs = find_runs(args.runs)
+            data, meta = extract_run_data(runs, args.max_points), runs_metadata(runs)
+            if args.from_data is not None:
+                earlier_meta = args.from_data.with_name("runs_meta.csv")
+                data, meta = merge_run_data(
+                    _read_runs_csv(args.from_data),
+                    _read_meta_csv(earlier_meta) if earlier_meta.is_file() else None,
+                    data,
+                    meta,
+                    source=str(args.from_data),
+                )
             args.out.mkdir(parents=True, exist_ok=True)
             runs_csv = args.out / "runs.csv"
-            extract_run_data(runs, args.max_points).to_csv(
-                runs_csv, index=False, float_format="%.6g"
-            )
-            runs_metadata(runs).to_csv(args.out / "runs_meta.csv", index=False)
+            data.to_csv(runs_csv, index=False, float_format="%.6g")
+            meta.to_csv(args.out / "runs_meta.csv", index=False)
     except (FileNotFoundError, ValueError) as error:
         parser.error(str(error))
     # Both modes compute from the file just written or given, so the tables of a
