@@ -505,6 +505,35 @@ class BareDDPG:
             )
 
 
+def product_gflops(size: int = 256, reps: int = 400) -> dict[str, float]:
+    """GFLOP/s of a ``size``-cubed float32 product on one thread, MKL and oneDNN.
+
+    The recipe's DDPG layers run their products on oneDNN (``OneDNNLinear``), the
+    bare update's on MKL (``nn.Linear``): how the two libraries compare on the
+    host decides much of item 2's ratio, so the table prints it.
+    """
+    from torchrl_surprise.modules.vae import _ONEDNN_LINEAR
+
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        x, w, b = torch.randn(size, size), torch.randn(size, size), torch.randn(size)
+        calls = {"mkl": lambda: nn.functional.linear(x, w, b)}
+        if _ONEDNN_LINEAR is not None:
+            calls["onednn"] = lambda: _ONEDNN_LINEAR(x, w, b, "none", [], "")
+        rates = {}
+        for name, call in calls.items():
+            for _ in range(20):
+                call()
+            start = time.perf_counter()
+            for _ in range(reps):
+                call()
+            rates[name] = 2 * size**3 * reps / (time.perf_counter() - start) / 1e9
+        return rates
+    finally:
+        torch.set_num_threads(previous)
+
+
 def bare_ddpg(updates: int) -> Sample:
     previous = torch.get_num_threads()
     torch.set_num_threads(1)
@@ -706,6 +735,7 @@ def main(argv: list[str] | None = None) -> dict:
 
         if 2 in args.items or 5 in args.items:
             print("[2] DDPG recipe (Hopper-v5) vs bare eager update, updates/s")
+            details["products_gflops"] = product_gflops()
             samples = interleave(
                 {
                     "bare eager": lambda: bare_ddpg(plan.bare_updates),
@@ -992,6 +1022,13 @@ def render(targets: list[Target], details: dict, plan: Plan) -> str:
         met = {True: "yes", False: "NO", None: "skip"}[t.met]
         lines.append(
             f"{t.item:<2} {t.name:<52} {measured:>9} {goal:>7}  {met:<5} {t.note}"
+        )
+    if "products_gflops" in details:
+        rates = details["products_gflops"]
+        lines.append(
+            "2: 256x256x256 float32 product on one thread: "
+            + ", ".join(f"{k} {v:.0f} GFLOP/s" for k, v in rates.items())
+            + " (the recipe's DDPG layers use oneDNN, the bare update MKL)"
         )
     lines += details.get("notes", [])
     return "\n".join(lines)
