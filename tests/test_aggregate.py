@@ -23,6 +23,8 @@ from torchrl_surprise.experiments.aggregate import (
     extract_run_data,
     find_runs,
     main,
+    merge_run_data,
+    runs_metadata,
     setting_label,
 )
 
@@ -296,6 +298,21 @@ def test_adding_a_shorter_run_than_the_committed_one_is_refused(
     meta = read(out, "runs_meta.csv").set_index(["task", "setting", "seed"])
     assert len(meta) == 12 and meta.loc[(CHEETAH, "cheetah_vae", 1), "finished"]
     assert meta.loc[(CHEETAH, "cheetah_vae", 1), "last_frame"] == 10000
+
+
+def test_data_without_metadata_keeps_its_runs_by_their_last_frame(sweep):
+    runs = find_runs([sweep["root"] / "runs" / "minigrid"])
+    earlier = extract_run_data(runs[:3])
+    data, meta = extract_run_data(runs[2:]), runs_metadata(runs[2:])
+    merged, merged_meta = merge_run_data(earlier, None, data, meta, source="old.csv")
+    assert merged.equals(extract_run_data(runs))
+    assert len(merged_meta) == len(runs)
+    # the two runs known only from the data: their last frame, their source
+    old = merged_meta.iloc[:2]
+    assert (old["last_frame"] == 10000).all() and (old["run_dir"] == "old.csv").all()
+    assert old["total_frames"].isna().all() and old["finished"].isna().all()
+    new = merged_meta.iloc[2:].reset_index(drop=True)
+    assert new.to_csv(index=False) == meta.to_csv(index=False)
 
 
 def test_a_run_short_of_the_budget_is_left_out_of_final_scores(sweep, tmp_path):

@@ -469,8 +469,11 @@ def merge_run_data(
             raise ValueError(f"{name} has no column {', '.join(missing)}")
     if earlier_meta is None:
         reach = earlier.groupby(_RUN_KEYS, as_index=False)["frames"].max()
+        unknown = [pd.NA] * len(reach)
         earlier_meta = reach.rename(columns={"frames": "last_frame"}).assign(
-            total_frames=pd.NA, finished=pd.NA, run_dir=source
+            total_frames=pd.array(unknown, dtype="Int64"),
+            finished=pd.array(unknown, dtype="boolean"),
+            run_dir=source,
         )[meta.columns]
     old_reach = earlier.groupby(_RUN_KEYS)["frames"].max()
     new_reach = data.groupby(_RUN_KEYS)["frames"].max()
