@@ -165,6 +165,8 @@ EPISODES_METRIC = "train/episodes"
 EPISODE_WINDOW = 100
 
 _RUN_KEYS = ["task", "setting", "seed"]
+#: The columns of ``runs.csv``.
+_DATA_COLUMNS = [*_RUN_KEYS, "frames", "metric", "value"]
 #: The override that names a run's noise level in its setting label.
 LEVEL_KEY = "env.stochasticity"
 # Overrides that name the run (which seed, which task, which sweep) or how Hydra
@@ -369,7 +371,7 @@ def extract_run_data(runs: Sequence[RunInfo], max_points: int = 200) -> pd.DataF
                     }
                 )
             )
-    columns = [*_RUN_KEYS, "frames", "metric", "value"]
+    columns = _DATA_COLUMNS
     if not tables:
         return pd.DataFrame(columns=columns)
     return pd.concat(tables, ignore_index=True)[columns]
@@ -462,7 +464,7 @@ def merge_run_data(
         ...
         ValueError: task T, setting s, seed 1: runs/1 reached frame 50, the earlier data 100: ...
     """
-    columns = [*_RUN_KEYS, "frames", "metric", "value"]
+    columns = _DATA_COLUMNS
     for name, table in (("earlier", earlier), ("data", data)):
         missing = sorted(set(columns) - set(table.columns))
         if missing:
@@ -1158,6 +1160,12 @@ def _read_runs_csv(path: Path) -> pd.DataFrame:
     )
 
 
+def _read_meta_beside(runs_csv: Path) -> pd.DataFrame | None:
+    # runs_meta.csv is written beside runs.csv; data from before it existed has none
+    meta_csv = runs_csv.with_name("runs_meta.csv")
+    return _read_meta_csv(meta_csv) if meta_csv.is_file() else None
+
+
 def _read_meta_csv(path: Path) -> pd.DataFrame:
     return pd.read_csv(
         path,
@@ -1352,10 +1360,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             runs = find_runs(args.runs)
             data, meta = extract_run_data(runs, args.max_points), runs_metadata(runs)
             if args.from_data is not None:
-                earlier_meta = args.from_data.with_name("runs_meta.csv")
                 data, meta = merge_run_data(
                     _read_runs_csv(args.from_data),
-                    _read_meta_csv(earlier_meta) if earlier_meta.is_file() else None,
+                    _read_meta_beside(args.from_data),
                     data,
                     meta,
                     source=str(args.from_data),
@@ -1371,8 +1378,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     data = _read_runs_csv(runs_csv)
     if data.empty:
         parser.error(f"{runs_csv}: the runs logged none of {', '.join(METRICS)}")
-    meta_csv = runs_csv.with_name("runs_meta.csv")
-    meta = _read_meta_csv(meta_csv) if meta_csv.is_file() else None
+    meta = _read_meta_beside(runs_csv)
     paths = aggregate(
         data,
         args.out,
