@@ -9,6 +9,7 @@ from __future__ import annotations
 import csv
 
 import numpy as np
+import pandas as pd
 import pytest
 import torch
 from tensordict import TensorDict
@@ -18,6 +19,7 @@ from torchrl_surprise.experiments.heatmap import (
     CATEGORIES,
     bonus_grid,
     category_means,
+    category_table,
     cell_categories,
     door_views,
     load_bonus_transform,
@@ -345,3 +347,72 @@ def test_cli_draws_an_elliptical_run_with_its_episode_memory(tmp_path, capsys):
     }
     assert set(by_steps) == {"0", "5"} and by_steps["5"] < by_steps["0"]
     assert "first 0/5 steps of the shortest solution" in capsys.readouterr().out
+
+
+def test_summary_over_runs_and_layouts(tmp_path, capsys):
+    # Two runs (two different VAEs) on two layouts: the per-layout rows are the
+    # grids' category means, relative to the layout's mean, and the summary
+    # aggregates each run's mean over the layouts.
+    runs = []
+    for i in range(2):
+        transform = small_transform()
+        with torch.no_grad():
+            transform.vae.head.bias.add_(0.5 * i)
+        run_dir = tmp_path / f"run{i}"
+        run_dir.mkdir()
+        write_checkpoint(run_dir / "checkpoint.pt", transform)
+        runs.append((run_dir, transform))
+    out = tmp_path / "summary" / "n3s4_categories.csv"
+    path = main(
+        [str(r) for r, _ in runs]
+        + ["--summary", "--layout-seeds", "0", "1", "--open-doors", "--out", str(out)]
+    )
+    assert path == out
+    layouts = pd.read_csv(out.with_name("n3s4_categories_layouts.csv"))
+    assert sorted(layouts["layout_seed"].unique()) == [0, 1]
+    per_run = {}
+    for run_dir, transform in runs:
+        means = []
+        for layout_seed in (0, 1):
+            env = make_layout_env(ENV, layout_seed=layout_seed)
+            grid = bonus_grid(transform, env, open_doors=True)
+            doorway = grid[cell_categories(env, open_doors=True)["doorway"]]
+            row = layouts[
+                (layouts["source"] == str(run_dir))
+                & (layouts["layout_seed"] == layout_seed)
+                & (layouts["category"] == "doorway")
+            ].iloc[0]
+            assert row["mean_bonus"] == pytest.approx(float(doorway.mean()), rel=1e-5)
+            expected = (
+                doorway.mean() / grid[reachable_cells(env, open_doors=True)].mean()
+            )
+            assert row["relative"] == pytest.approx(float(expected), rel=1e-5)
+            means.append(expected)
+            env.close()
+        per_run[run_dir] = np.mean(means)
+    summary = pd.read_csv(out)
+    assert "all" not in set(summary["category"])
+    doorway = summary[summary["category"] == "doorway"].iloc[0]
+    assert doorway["runs"] == 2 and doorway["layouts"] == 2
+    # the IQM of two runs is their mean
+    assert doorway["relative_iqm"] == pytest.approx(np.mean(list(per_run.values())))
+    assert (
+        doorway["relative_low"] <= doorway["relative_iqm"] <= doorway["relative_high"]
+    )
+    assert doorway["runs_above_average"] == sum(v > 1 for v in per_run.values())
+    printed = capsys.readouterr().out
+    assert "doorway" in printed and str(out) in printed
+
+
+def test_summary_refuses_mixed_envs_and_layouts_without_summary(tmp_path):
+    transform = small_transform()
+    first, second = tmp_path / "a.pt", tmp_path / "b.pt"
+    write_checkpoint(first, transform)
+    write_checkpoint(second, transform)
+    state = torch.load(second, weights_only=False)
+    state["config"]["env"]["name"] = "MiniGrid-DoorKey-5x5-v0"
+    torch.save(state, second)
+    with pytest.raises(ValueError, match="different envs.*DoorKey-5x5.*N3-S4"):
+        category_table([first, second], [0])
+    with pytest.raises(SystemExit):
+        main([str(first), "--layout-seeds", "0", "1", "--out", str(tmp_path / "x.png")])

@@ -50,6 +50,21 @@ observations of its cells, all 4 directions) and, for cells, ``mean_cell_max``
 shows).
 
 The picture and the means are one layout of one run: an anecdote, not a result.
+
+**Over runs and layouts.** ``--summary`` draws no picture: it scores every
+checkpoint on every layout of ``--layout-seeds``, divides each category's mean
+bonus by the layout's mean over all its reachable observations (1.0: an average
+observation; :func:`category_table`) and gives, per setting, the IQM over runs of
+each run's mean over the layouts with a 95% bootstrap CI and how many runs put
+the category above the average (:func:`summarize_categories`)::
+
+    python -m torchrl_surprise.experiments.heatmap --summary \\
+        runs/a2c_minigrid/doorkey8x8/+setting=vae_literal,seed=* \\
+        --layout-seeds 0 1 2 3 4 5 6 7 8 9 --open-doors \\
+        --out docs/results/heatmaps/doorkey8x8_categories.csv
+
+writes the summary there and the rows per run and layout beside it
+(``doorkey8x8_categories_layouts.csv``).
 """
 
 from __future__ import annotations
@@ -72,6 +87,7 @@ __all__ = [
     "CATEGORIES",
     "bonus_grid",
     "category_means",
+    "category_table",
     "cell_categories",
     "door_views",
     "load_bonus_transform",
@@ -82,6 +98,7 @@ __all__ = [
     "reachable_cells",
     "render_layout",
     "solution_memory",
+    "summarize_categories",
 ]
 
 CATEGORIES: tuple[str, ...] = ("doorway", "near_goal", "door_in_view", "other")
@@ -513,6 +530,20 @@ def category_means(
     return out
 
 
+def _groups(env, open_doors: bool) -> dict[str, np.ndarray]:
+    """The categories of the CSV: :func:`cell_categories`, ``all`` and the views."""
+    reachable = reachable_cells(env, open_doors=open_doors)
+    views = door_views(env, open_doors=open_doors)
+    return {
+        **cell_categories(env, open_doors=open_doors),
+        "all": reachable,
+        # Per observation: sharper than door_in_view, which a cell has when
+        # any one of its 4 directions sees a door (most cells of small rooms).
+        "view_door": views,
+        "view_no_door": reachable[..., None] & ~views,
+    }
+
+
 # ------------------------------------------------------------------ checkpoint
 def load_bonus_transform(run_dir_or_ckpt: str | os.PathLike):
     """The VAE bonus transform of an A2C-MiniGrid run, as the recipe built it.
@@ -599,6 +630,187 @@ def load_bonus_transform(run_dir_or_ckpt: str | os.PathLike):
         transform.reset_episodes()
     frames = int(ckpt.get("frames", 0))
     return transform, dict(config), frames
+
+
+# ------------------------------------------------------------ many runs, layouts
+def _memory(env, steps: int):
+    """The first ``steps`` states of the layout's shortest solution, or ``None``."""
+    if steps <= 0:
+        return None
+    images, directions, _ = solution_memory(env, steps)
+    return (images, directions) if len(images) else None
+
+
+def category_table(
+    sources: Sequence[str | os.PathLike],
+    layout_seeds: Sequence[int],
+    *,
+    env_name: str | None = None,
+    open_doors: bool = False,
+    memory_steps: Sequence[int] = (0,),
+):
+    """Each category's mean bonus, per run and layout, relative to the layout's mean.
+
+    The bonus grids of :func:`bonus_grid` for every checkpoint of ``sources``
+    on every layout of ``layout_seeds``, reduced by :func:`category_means`.
+    ``relative`` divides a category's ``mean_bonus`` by the mean over all the
+    layout's reachable observations (category ``all``): 1.0 is an average
+    observation. It compares runs whose bonus scales differ (the KL grows as a
+    VAE trains; the elliptical bonus has no unit), which
+    :func:`summarize_categories` aggregates over.
+
+    Args:
+        sources: run directories or checkpoint files (:func:`load_bonus_transform`),
+            all of one env unless ``env_name`` is given.
+        layout_seeds: the layouts (``make_layout_env(env_name, seed)``).
+        env_name: the MiniGrid env id (default: the checkpoints' ``env.name``).
+        open_doors (bool): open and unlock every door first.
+        memory_steps: for an episodic bonus, the episode memories
+            (:func:`solution_memory` of each layout) to score the cells after.
+
+    Returns:
+        A :class:`pandas.DataFrame`, one row per run, layout, memory and category
+        of :func:`category_means` (``all`` included): ``source, setting, seed,
+        variant, frames, env, layout_seed, memory_steps, category, unit, count,
+        mean_bonus, relative``.
+
+    Raises:
+        ValueError: the checkpoints come from different envs and ``env_name``
+            is not given; a negative memory length.
+
+    Examples:
+        >>> import tempfile, os, torch
+        >>> from torchrl_surprise import StateVAE, VAESurpriseTransform
+        >>> vae = StateVAE.for_minigrid(latent_dim=4, hidden_dim=16)
+        >>> config = {"bonus": "vae", "seed": 0, "setting": "vae_literal",
+        ...           "env": {"name": "MiniGrid-DoorKey-5x5-v0"},
+        ...           "intrinsic": {"normalization": "none", "vae": {
+        ...               "latent_dim": 4, "hidden_dim": 16, "use_direction": True}}}
+        >>> with tempfile.TemporaryDirectory() as run_dir:
+        ...     torch.save({"config": config, "frames": 128, "bonus_transform":
+        ...                 VAESurpriseTransform(vae).state_dict()},
+        ...                os.path.join(run_dir, "checkpoint.pt"))
+        ...     table = category_table([run_dir], layout_seeds=[0, 1])
+        >>> sorted(table["layout_seed"].unique().tolist())
+        [0, 1]
+        >>> table.loc[table["category"] == "all", "relative"].tolist()
+        [1.0, 1.0]
+    """
+    import pandas as pd
+
+    from torchrl_surprise.experiments.aggregate import setting_label
+
+    if min(memory_steps) < 0:
+        raise ValueError(f"memory_steps must be >= 0, got {list(memory_steps)}.")
+    loaded = [(str(src), *load_bonus_transform(src)) for src in sources]
+    env_names = {config["env"]["name"] for _, _, config, _ in loaded}
+    if env_name is None and len(env_names) > 1:
+        raise ValueError(
+            f"the checkpoints come from different envs {sorted(env_names)}: "
+            "summarise them separately, or pick the layouts' env with env_name."
+        )
+    env_name = env_name or env_names.pop()
+    rows = []
+    for layout_seed in layout_seeds:
+        env = make_layout_env(env_name, layout_seed)
+        groups = _groups(env, open_doors)
+        for steps in memory_steps:
+            memory = _memory(env, steps)
+            for src, transform, config, frames in loaded:
+                grid = bonus_grid(transform, env, open_doors=open_doors, memory=memory)
+                means = category_means(grid, groups)
+                overall = means["all"]["mean_bonus"]
+                for name, stats in means.items():
+                    rows.append(
+                        {
+                            "source": src,
+                            "setting": setting_label(config, None),
+                            "seed": config.get("seed"),
+                            "variant": config["intrinsic"]["vae"].get("variant", "kl"),
+                            "frames": frames,
+                            "env": env_name,
+                            "layout_seed": layout_seed,
+                            "memory_steps": steps,
+                            "category": name,
+                            "unit": stats["unit"],
+                            "count": stats["count"],
+                            "mean_bonus": stats["mean_bonus"],
+                            "relative": stats["mean_bonus"] / overall
+                            if overall
+                            else float("nan"),
+                        }
+                    )
+        env.close()
+    return pd.DataFrame(rows)
+
+
+def summarize_categories(table, *, reps: int = 2000, seed: int = 0):
+    """Over runs: how a category's bonus compares with the layout's average.
+
+    Each run's ``relative`` (:func:`category_table`) is averaged over the layouts
+    where the category has cells; over the runs of a setting, the IQM of those
+    means with a 95% stratified-bootstrap CI (rliable, as the sweeps' reports),
+    and how many runs put the category above the average (> 1.0).
+
+    Args:
+        table: the output of :func:`category_table`.
+        reps (int): bootstrap replications.
+        seed (int): seed of the bootstrap (one stream per estimate).
+
+    Returns:
+        A :class:`pandas.DataFrame`, one row per ``env, setting, variant,
+        memory_steps, category`` (``all`` left out): ``runs, layouts,
+        relative_iqm, relative_low, relative_high, runs_above_average,
+        mean_bonus`` (the mean over runs and layouts, in the bonus's unit).
+
+    Examples:
+        >>> import pandas as pd
+        >>> rows = [{"env": "E", "setting": "s", "variant": "kl", "memory_steps": 0,
+        ...          "source": f"run{r}", "layout_seed": l, "category": "doorway",
+        ...          "relative": 1.0 + r + l, "mean_bonus": 2.0}
+        ...         for r in range(3) for l in range(2)]
+        >>> row = summarize_categories(pd.DataFrame(rows), reps=100).iloc[0]
+        >>> float(row["relative_iqm"]), int(row["runs_above_average"]), int(row["layouts"])
+        (2.5, 3, 2)
+    """
+    import pandas as pd
+
+    from torchrl_surprise.experiments.aggregate import (
+        _bootstrap_seed,
+        _interval_estimate,
+        _iqm,
+    )
+
+    keys = ["env", "setting", "variant", "memory_steps", "category"]
+    table = table[table["category"] != "all"]
+    per_run = (
+        table.dropna(subset=["relative"])
+        .groupby([*keys, "source"], sort=False)
+        .agg(relative=("relative", "mean"), layouts=("layout_seed", "nunique"))
+        .reset_index()
+    )
+    rows = []
+    for key, group in per_run.groupby(keys, sort=False):
+        scores = group["relative"].to_numpy(dtype=float)[:, None]
+        point, interval = _interval_estimate(
+            scores, _iqm, reps, _bootstrap_seed(seed, *key)
+        )
+        bonus = table
+        for name, value in zip(keys, key):
+            bonus = bonus[bonus[name] == value]
+        rows.append(
+            {
+                **dict(zip(keys, key)),
+                "runs": len(group),
+                "layouts": int(group["layouts"].max()),
+                "relative_iqm": float(point[0]),
+                "relative_low": float(interval[0, 0]),
+                "relative_high": float(interval[1, 0]),
+                "runs_above_average": int((group["relative"] > 1.0).sum()),
+                "mean_bonus": float(bonus["mean_bonus"].mean()),
+            }
+        )
+    return pd.DataFrame(rows)
 
 
 # ---------------------------------------------------------------------- figure
@@ -817,11 +1029,30 @@ def _parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--layout-seed", type=int, default=0)
     parser.add_argument(
+        "--summary",
+        action="store_true",
+        help="no picture: each category's bonus relative to the layout's mean, "
+        "per run and layout (--layout-seeds), aggregated over the runs (IQM, 95%% "
+        "CI); --out is then the summary CSV, the per-layout rows go beside it",
+    )
+    parser.add_argument(
+        "--layout-seeds",
+        type=int,
+        nargs="+",
+        default=None,
+        metavar="SEED",
+        help="with --summary: the layouts (default: --layout-seed)",
+    )
+    parser.add_argument(
         "--env",
         default=None,
         help="MiniGrid env id (default: the checkpoints' env.name)",
     )
-    parser.add_argument("--out", required=True, help="the PNG; the CSV goes beside it")
+    parser.add_argument(
+        "--out",
+        required=True,
+        help="the PNG; the CSV goes beside it (--summary: the summary CSV)",
+    )
     parser.add_argument(
         "--open-doors",
         action="store_true",
@@ -861,12 +1092,16 @@ def main(argv: Sequence[str] | None = None) -> Path:
     """The command: loads the checkpoints, computes the grids, writes PNG and CSV.
 
     Returns:
-        The PNG's path.
+        The PNG's path (``--summary``: the summary CSV's).
     """
     args = _parser().parse_args(argv)
     sources = [*args.runs, *args.checkpoint]
     if not sources:
         _parser().error("give at least one run directory or --checkpoint")
+    if args.summary:
+        return _summary_main(args, sources)
+    if args.layout_seeds is not None:
+        _parser().error("--layout-seeds goes with --summary (a picture is one layout)")
     loaded = [(src, *load_bonus_transform(src)) for src in sources]
     env_names = {config["env"]["name"] for _, _, config, _ in loaded}
     if args.env is None and len(env_names) > 1:
@@ -886,16 +1121,7 @@ def main(argv: Sequence[str] | None = None) -> Path:
         memory = (images[:k], directions[:k]) if k else None
         memories.append((k, memory, [tuple(c) for c in cells[:k].tolist()]))
     has_memory = any(m[0] for m in memories)
-    reachable = reachable_cells(env, open_doors=args.open_doors)
-    views = door_views(env, open_doors=args.open_doors)
-    groups = {
-        **cell_categories(env, open_doors=args.open_doors),
-        "all": reachable,
-        # Per observation: sharper than door_in_view, which a cell has when
-        # any one of its 4 directions sees a door (most cells of small rooms).
-        "view_door": views,
-        "view_no_door": reachable[..., None] & ~views,
-    }
+    groups = _groups(env, args.open_doors)
 
     variants = [
         config["intrinsic"]["vae"].get("variant", "kl") for *_, config, _ in loaded
@@ -993,6 +1219,42 @@ def main(argv: Sequence[str] | None = None) -> Path:
         )
     print(f"Heatmap: {png}\nCategory means: {csv_path}")
     return png
+
+
+def _summary_main(args, sources: Sequence[str]) -> Path:
+    layout_seeds = args.layout_seeds or [args.layout_seed]
+    table = category_table(
+        sources,
+        layout_seeds,
+        env_name=args.env,
+        open_doors=args.open_doors,
+        memory_steps=args.memory_steps,
+    )
+    summary = summarize_categories(table)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    layouts_path = out.with_name(out.stem + "_layouts.csv")
+    table.to_csv(layouts_path, index=False)
+    summary.to_csv(out, index=False)
+    doors = "doors open" if args.open_doors else "doors as generated"
+    print(
+        f"{table['env'].iloc[0]}, layouts {layout_seeds}, {doors}: each category's "
+        "mean bonus over the layout's mean (1.0: average), IQM [95% CI] over runs"
+    )
+    print(
+        f"{'setting':<24} {'memory':>6} {'category':<15} {'runs':>4} "
+        f"{'relative':>22} {'above 1':>7}"
+    )
+    for row in summary.itertuples():
+        interval = (
+            f"{row.relative_iqm:.2f} [{row.relative_low:.2f}, {row.relative_high:.2f}]"
+        )
+        print(
+            f"{row.setting[:24]:<24} {row.memory_steps:>6} {row.category:<15} "
+            f"{row.runs:>4} {interval:>22} {row.runs_above_average:>7}"
+        )
+    print(f"Summary: {out}\nPer run and layout: {layouts_path}")
+    return out
 
 
 if __name__ == "__main__":
