@@ -13,6 +13,7 @@ import torch
 from _recipe_run import differing_logs, kill_after_checkpoint, wait_for_checkpoint
 
 from torchrl_surprise.experiments import load_checkpoint, read_scalar_csv
+from torchrl_surprise.experiments.heatmap import load_bonus_transform
 
 MAIN = Path(__file__).resolve().parents[1] / "recipes" / "a2c_minigrid" / "main.py"
 TINY = [
@@ -40,7 +41,9 @@ def run_recipe(run_dir: Path, *overrides: str, check: bool = True):
 @pytest.mark.parametrize("bonus", ["none", "vae", "icm", "rnd"])
 def test_every_bonus_runs_end_to_end(tmp_path, bonus):
     run_dir = tmp_path / bonus
-    proc = run_recipe(run_dir, f"bonus={bonus}", "collector.total_frames=512")
+    # the VAE run also keeps its periodic checkpoints (points of training)
+    keep = ["checkpoint.keep=true"] if bonus == "vae" else []
+    proc = run_recipe(run_dir, f"bonus={bonus}", "collector.total_frames=512", *keep)
     assert "Learning curve:" in proc.stdout
     assert (run_dir / "learning_curve.png").stat().st_size > 0
     assert (run_dir / "config_resolved.yaml").exists()
@@ -54,6 +57,19 @@ def test_every_bonus_runs_end_to_end(tmp_path, bonus):
         assert list((scalars / "bonus").iterdir()), "bonus-model losses are logged"
     ckpt = load_checkpoint(run_dir / "checkpoint.pt")
     assert ckpt["frames"] == 512
+    kept = sorted((run_dir / "checkpoints").glob("*.pt")) if keep else []
+    if keep:
+        # one per checkpoint.interval_frames (128), each at its own frame count
+        assert [p.name for p in kept] == [
+            f"checkpoint_{n}.pt" for n in (128, 256, 384, 512)
+        ]
+        _, _, frames = load_bonus_transform(kept[1])
+        assert frames == 256
+        early = load_checkpoint(kept[0])["bonus_transform"]
+        late = ckpt["bonus_transform"]
+        assert any(not torch.equal(early[k], late[k]) for k in early if "vae." in k)
+    else:
+        assert not (run_dir / "checkpoints").exists()
 
 
 @pytest.mark.parametrize("variant", ["neg_elbo", "info_gain", "lagged_kl"])

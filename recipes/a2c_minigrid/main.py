@@ -142,6 +142,7 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
             "rng": RNGState(),
         },
         config=OmegaConf.to_container(cfg, resolve=True),
+        keep_dir=run_dir / "checkpoints" if cfg.checkpoint.keep else None,
     )
     if ckpt:
         checkpointer.load(ckpt)

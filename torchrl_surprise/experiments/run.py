@@ -7,6 +7,7 @@ import csv
 import importlib
 import os
 import random
+import shutil
 import signal
 import sys
 import types
@@ -345,6 +346,9 @@ class Checkpointer:
         components: name -> object.
         config: the resolved run config, saved with the state so that a resume
             can refuse a changed experiment (:func:`prepare_run`).
+        keep_dir: where :meth:`save_every` also keeps each periodic checkpoint,
+            as ``checkpoint_<frames>.pt`` (points of training, for instance for
+            the surprise heatmap); ``None`` (default) keeps only the latest.
 
     Examples:
         >>> import tempfile, os
@@ -356,6 +360,12 @@ class Checkpointer:
         ...              config={}).load(load_checkpoint(path))
         >>> other.frames
         128
+        >>> keep = os.path.join(os.path.dirname(path), "checkpoints")
+        >>> progress.next_ckpt = 100
+        >>> Checkpointer(path, {"progress": progress}, config={},
+        ...              keep_dir=keep).save_every(100)
+        >>> os.listdir(keep), progress.next_ckpt
+        (['checkpoint_128.pt'], 200)
     """
 
     def __init__(
@@ -363,10 +373,12 @@ class Checkpointer:
         path: str | os.PathLike,
         components: Mapping[str, Any],
         config: Mapping[str, Any],
+        keep_dir: str | os.PathLike | None = None,
     ):
         self.path = Path(path)
         self.components = {k: v for k, v in components.items() if v is not None}
         self.config = config
+        self.keep_dir = None if keep_dir is None else Path(keep_dir)
 
     def save(self) -> None:
         state = {name: obj.state_dict() for name, obj in self.components.items()}
@@ -384,6 +396,12 @@ class Checkpointer:
         if progress.frames >= progress.next_ckpt:
             progress.next_ckpt += interval_frames
             self.save()
+            if self.keep_dir is not None:
+                # the same bytes: a copy of the file save() has just written
+                self.keep_dir.mkdir(parents=True, exist_ok=True)
+                kept = self.keep_dir / f"checkpoint_{progress.frames}.pt"
+                shutil.copyfile(self.path, kept.with_name(kept.name + ".tmp"))
+                os.replace(kept.with_name(kept.name + ".tmp"), kept)
 
     def load(self, state: Mapping[str, Any]) -> None:
         missing = [name for name in self.components if name not in state]
