@@ -362,10 +362,14 @@ def test_summary_over_runs_and_layouts(tmp_path, capsys):
         run_dir.mkdir()
         write_checkpoint(run_dir / "checkpoint.pt", transform)
         runs.append((run_dir, transform))
+    # another point of training of the first run: a row of its own
+    later = tmp_path / "run0_later.pt"
+    write_checkpoint(later, runs[0][1], frames=5678)
     out = tmp_path / "summary" / "n3s4_categories.csv"
     path = main(
         [str(r) for r, _ in runs]
-        + ["--summary", "--layout-seeds", "0", "1", "--open-doors", "--out", str(out)]
+        + ["--checkpoint", str(later), "--summary", "--layout-seeds", "0", "1"]
+        + ["--open-doors", "--out", str(out)]
     )
     assert path == out
     layouts = pd.read_csv(out.with_name("n3s4_categories_layouts.csv"))
@@ -392,7 +396,10 @@ def test_summary_over_runs_and_layouts(tmp_path, capsys):
         per_run[run_dir] = np.mean(means)
     summary = pd.read_csv(out)
     assert "all" not in set(summary["category"])
-    doorway = summary[summary["category"] == "doorway"].iloc[0]
+    doorways = summary[summary["category"] == "doorway"].set_index("frames")
+    assert doorways.loc[5678, "runs"] == 1
+    assert doorways.loc[5678, "relative_iqm"] == pytest.approx(per_run[runs[0][0]])
+    doorway = doorways.loc[1234]
     assert doorway["runs"] == 2 and doorway["layouts"] == 2
     # the IQM of two runs is their mean
     assert doorway["relative_iqm"] == pytest.approx(np.mean(list(per_run.values())))

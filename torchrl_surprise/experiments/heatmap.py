@@ -759,13 +759,14 @@ def summarize_categories(table, *, reps: int = 2000, seed: int = 0):
 
     Returns:
         A :class:`pandas.DataFrame`, one row per ``env, setting, variant,
-        memory_steps, category`` (``all`` left out): ``runs, layouts,
+        frames, memory_steps, category`` (``all`` left out): ``runs, layouts,
         relative_iqm, relative_low, relative_high, runs_above_average,
         mean_bonus`` (the mean over runs and layouts, in the bonus's unit).
 
     Examples:
         >>> import pandas as pd
-        >>> rows = [{"env": "E", "setting": "s", "variant": "kl", "memory_steps": 0,
+        >>> rows = [{"env": "E", "setting": "s", "variant": "kl", "frames": 128,
+        ...          "memory_steps": 0,
         ...          "source": f"run{r}", "layout_seed": l, "category": "doorway",
         ...          "relative": 1.0 + r + l, "mean_bonus": 2.0}
         ...         for r in range(3) for l in range(2)]
@@ -781,7 +782,8 @@ def summarize_categories(table, *, reps: int = 2000, seed: int = 0):
         _iqm,
     )
 
-    keys = ["env", "setting", "variant", "memory_steps", "category"]
+    # checkpoints of one setting at other points of training are other rows
+    keys = ["env", "setting", "variant", "frames", "memory_steps", "category"]
     table = table[table["category"] != "all"]
     per_run = (
         table.dropna(subset=["relative"])
@@ -1242,7 +1244,7 @@ def _summary_main(args, sources: Sequence[str]) -> Path:
         "mean bonus over the layout's mean (1.0: average), IQM [95% CI] over runs"
     )
     print(
-        f"{'setting':<24} {'memory':>6} {'category':<15} {'runs':>4} "
+        f"{'setting':<24} {'frames':>8} {'memory':>6} {'category':<15} {'runs':>4} "
         f"{'relative':>22} {'above 1':>7}"
     )
     for row in summary.itertuples():
@@ -1250,7 +1252,8 @@ def _summary_main(args, sources: Sequence[str]) -> Path:
             f"{row.relative_iqm:.2f} [{row.relative_low:.2f}, {row.relative_high:.2f}]"
         )
         print(
-            f"{row.setting[:24]:<24} {row.memory_steps:>6} {row.category:<15} "
+            f"{row.setting[:24]:<24} {row.frames:>8} {row.memory_steps:>6} "
+            f"{row.category:<15} "
             f"{row.runs:>4} {interval:>22} {row.runs_above_average:>7}"
         )
     print(f"Summary: {out}\nPer run and layout: {layouts_path}")
