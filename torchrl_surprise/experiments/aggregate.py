@@ -129,6 +129,7 @@ __all__ = [
     "find_runs",
     "frames_to_threshold",
     "improvement_probabilities",
+    "iqm_interval",
     "main",
     "merge_run_data",
     "normalize_returns",
@@ -638,6 +639,43 @@ def _iqm(scores: np.ndarray) -> np.ndarray:
     return np.array([metrics.aggregate_iqm(scores)])
 
 
+def iqm_interval(
+    scores: Sequence[float] | np.ndarray,
+    *,
+    reps: int = 2000,
+    seed: int = 0,
+    names: Sequence[object] = (),
+) -> tuple[float, float, float]:
+    """The IQM of per-run scores with its 95% stratified-bootstrap CI (rliable).
+
+    How the reports state a result over seeds. The bootstrap draws from one
+    stream per estimate, named by ``names`` (what it estimates) and ``seed``, so
+    an estimate does not depend on what else is aggregated beside it.
+
+    Args:
+        scores: one score per run.
+        reps (int): bootstrap replications.
+        seed (int): seed of the bootstrap.
+        names: what is estimated (e.g. task, setting, metric).
+
+    Returns:
+        ``(iqm, low, high)``.
+
+    Examples:
+        >>> iqm, low, high = iqm_interval([0.1, 0.5, 0.6, 0.7, 0.9], reps=200,
+        ...                               names=("task", "setting"))
+        >>> round(iqm, 2), bool(0.1 <= low <= iqm <= high <= 0.9)
+        (0.6, True)
+        >>> iqm_interval([0.1, 0.5, 0.6, 0.7, 0.9], reps=200, names=("task", "setting"))[1] == low
+        True
+    """
+    values = np.asarray(scores, dtype=float)[:, None]
+    point, interval = _interval_estimate(
+        values, _iqm, reps, _bootstrap_seed(seed, *names)
+    )
+    return float(point[0]), float(interval[0, 0]), float(interval[1, 0])
+
+
 def _iqm_per_column(scores: np.ndarray) -> np.ndarray:
     # rliable's aggregate_iqm at every frame of a (runs x 1 x frames) array at
     # once: a 25% trimmed mean over runs.
@@ -791,11 +829,12 @@ def summarize(
             ].to_numpy()
             iqm = low = high = mean = None
             if len(scores):
-                stream = _bootstrap_seed(seed, "final", task, setting, metric)
-                point, interval = _interval_estimate(
-                    scores[:, None], _iqm, reps, stream
+                iqm, low, high = iqm_interval(
+                    scores,
+                    reps=reps,
+                    seed=seed,
+                    names=("final", task, setting, metric),
                 )
-                iqm, low, high = point[0], interval[0, 0], interval[1, 0]
                 mean = scores.mean()
             row.update(
                 {

@@ -776,11 +776,7 @@ def summarize_categories(table, *, reps: int = 2000, seed: int = 0):
     """
     import pandas as pd
 
-    from torchrl_surprise.experiments.aggregate import (
-        _bootstrap_seed,
-        _interval_estimate,
-        _iqm,
-    )
+    from torchrl_surprise.experiments.aggregate import iqm_interval
 
     # checkpoints of one setting at other points of training are other rows
     keys = ["env", "setting", "variant", "frames", "memory_steps", "category"]
@@ -793,9 +789,8 @@ def summarize_categories(table, *, reps: int = 2000, seed: int = 0):
     )
     rows = []
     for key, group in per_run.groupby(keys, sort=False):
-        scores = group["relative"].to_numpy(dtype=float)[:, None]
-        point, interval = _interval_estimate(
-            scores, _iqm, reps, _bootstrap_seed(seed, *key)
+        iqm, low, high = iqm_interval(
+            group["relative"].to_numpy(), reps=reps, seed=seed, names=key
         )
         bonus = table
         for name, value in zip(keys, key):
@@ -805,9 +800,9 @@ def summarize_categories(table, *, reps: int = 2000, seed: int = 0):
                 **dict(zip(keys, key)),
                 "runs": len(group),
                 "layouts": int(group["layouts"].max()),
-                "relative_iqm": float(point[0]),
-                "relative_low": float(interval[0, 0]),
-                "relative_high": float(interval[1, 0]),
+                "relative_iqm": iqm,
+                "relative_low": low,
+                "relative_high": high,
                 "runs_above_average": int((group["relative"] > 1.0).sum()),
                 "mean_bonus": float(bonus["mean_bonus"].mean()),
             }
