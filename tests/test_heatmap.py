@@ -407,6 +407,9 @@ def test_summary_over_runs_and_layouts(tmp_path, capsys):
         doorway["relative_low"] <= doorway["relative_iqm"] <= doorway["relative_high"]
     )
     assert doorway["runs_above_average"] == sum(v > 1 for v in per_run.values())
+    report = pd.read_csv(out.with_name("n3s4_categories_report.csv"))
+    assert len(report) == len(summary)
+    assert f"{doorway['runs_above_average']} of 2" in set(report.iloc[:, -1])
     printed = capsys.readouterr().out
     assert "doorway" in printed and str(out) in printed
 

@@ -63,8 +63,9 @@ the category above the average (:func:`summarize_categories`)::
         --layout-seeds 0 1 2 3 4 5 6 7 8 9 --open-doors \\
         --out docs/results/heatmaps/doorkey8x8_categories.csv
 
-writes the summary there and the rows per run and layout beside it
-(``doorkey8x8_categories_layouts.csv``).
+writes the summary there, beside it the rows per run and layout
+(``doorkey8x8_categories_layouts.csv``) and the summary formatted for the docs
+(``doorkey8x8_categories_report.csv``, :func:`summary_report`).
 """
 
 from __future__ import annotations
@@ -99,6 +100,7 @@ __all__ = [
     "render_layout",
     "solution_memory",
     "summarize_categories",
+    "summary_report",
 ]
 
 CATEGORIES: tuple[str, ...] = ("doorway", "near_goal", "door_in_view", "other")
@@ -1218,6 +1220,41 @@ def main(argv: Sequence[str] | None = None) -> Path:
     return png
 
 
+def summary_report(summary):
+    """The summary of :func:`summarize_categories` as the docs show it.
+
+    One row per setting, point of training, memory and category:
+    ``relative to the average, IQM [95% CI]`` formatted, and ``runs above
+    average`` as ``k of n``.
+
+    Examples:
+        >>> import pandas as pd
+        >>> summary = pd.DataFrame([{"env": "E", "setting": "s", "variant": "kl",
+        ...     "frames": 128, "memory_steps": 0, "category": "doorway", "runs": 5,
+        ...     "layouts": 10, "relative_iqm": 1.234, "relative_low": 1.1,
+        ...     "relative_high": 1.3, "runs_above_average": 4, "mean_bonus": 2.0}])
+        >>> summary_report(summary).iloc[0, [0, 3, 4, 5]].tolist()
+        ['s', 'doorway', '1.23 [1.10, 1.30]', '4 of 5']
+    """
+    import pandas as pd
+
+    return pd.DataFrame(
+        {
+            "setting": summary["setting"],
+            "frames": summary["frames"],
+            "memory steps": summary["memory_steps"],
+            "category": summary["category"],
+            "bonus over the layout's mean, IQM [95% CI]": [
+                f"{r.relative_iqm:.2f} [{r.relative_low:.2f}, {r.relative_high:.2f}]"
+                for r in summary.itertuples()
+            ],
+            "runs above the mean": [
+                f"{r.runs_above_average} of {r.runs}" for r in summary.itertuples()
+            ],
+        }
+    )
+
+
 def _summary_main(args, sources: Sequence[str]) -> Path:
     layout_seeds = args.layout_seeds or [args.layout_seed]
     table = category_table(
@@ -1231,8 +1268,10 @@ def _summary_main(args, sources: Sequence[str]) -> Path:
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     layouts_path = out.with_name(out.stem + "_layouts.csv")
+    report_path = out.with_name(out.stem + "_report.csv")
     table.to_csv(layouts_path, index=False)
     summary.to_csv(out, index=False)
+    summary_report(summary).to_csv(report_path, index=False)
     doors = "doors open" if args.open_doors else "doors as generated"
     print(
         f"{table['env'].iloc[0]}, layouts {layout_seeds}, {doors}: each category's "
@@ -1251,7 +1290,9 @@ def _summary_main(args, sources: Sequence[str]) -> Path:
             f"{row.category:<15} "
             f"{row.runs:>4} {interval:>22} {row.runs_above_average:>7}"
         )
-    print(f"Summary: {out}\nPer run and layout: {layouts_path}")
+    print(
+        f"Summary: {out}\nFor the docs: {report_path}\nPer run and layout: {layouts_path}"
+    )
     return out
 
 
