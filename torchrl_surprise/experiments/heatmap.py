@@ -635,12 +635,31 @@ def load_bonus_transform(run_dir_or_ckpt: str | os.PathLike):
 
 
 # ------------------------------------------------------------ many runs, layouts
-def _memory(env, steps: int):
-    """The first ``steps`` states of the layout's shortest solution, or ``None``."""
-    if steps <= 0:
-        return None
-    images, directions, _ = solution_memory(env, steps)
-    return (images, directions) if len(images) else None
+def _load_sources(sources: Sequence[str | os.PathLike], env_name: str | None):
+    """``([(source, transform, config, frames)], env_name)``: one env for all."""
+    loaded = [(str(src), *load_bonus_transform(src)) for src in sources]
+    env_names = {config["env"]["name"] for _, _, config, _ in loaded}
+    if env_name is None and len(env_names) > 1:
+        raise ValueError(
+            f"the checkpoints come from different envs {sorted(env_names)}: give "
+            "those of one env, or pick the layouts' env (--env, env_name)."
+        )
+    return loaded, env_name or env_names.pop()
+
+
+def _memories(env, memory_steps: Sequence[int]) -> list[tuple[int, Any, list]]:
+    """``[(K, memory or None, cells)]``: the first ``K`` states of the layout's
+    shortest solution for each of ``memory_steps`` (``K`` at most its length)."""
+    if min(memory_steps) < 0:
+        raise ValueError(f"--memory-steps must be >= 0, got {list(memory_steps)}.")
+    # one search for the longest memory; each K takes its first K states
+    images, directions, cells = solution_memory(env, max(memory_steps))
+    memories = []
+    for steps in memory_steps:
+        k = min(steps, len(cells))
+        memory = (images[:k], directions[:k]) if k else None
+        memories.append((k, memory, [tuple(c) for c in cells[:k].tolist()]))
+    return memories
 
 
 def category_table(
@@ -702,34 +721,30 @@ def category_table(
 
     from torchrl_surprise.experiments.aggregate import setting_label
 
-    if min(memory_steps) < 0:
-        raise ValueError(f"memory_steps must be >= 0, got {list(memory_steps)}.")
-    loaded = [(str(src), *load_bonus_transform(src)) for src in sources]
-    env_names = {config["env"]["name"] for _, _, config, _ in loaded}
-    if env_name is None and len(env_names) > 1:
-        raise ValueError(
-            f"the checkpoints come from different envs {sorted(env_names)}: "
-            "summarise them separately, or pick the layouts' env with env_name."
-        )
-    env_name = env_name or env_names.pop()
+    loaded, env_name = _load_sources(sources, env_name)
+    labels = [
+        {
+            "source": src,
+            "setting": setting_label(config, None),
+            "seed": config.get("seed"),
+            "variant": config["intrinsic"]["vae"].get("variant", "kl"),
+            "frames": frames,
+        }
+        for src, _, config, frames in loaded
+    ]
     rows = []
     for layout_seed in layout_seeds:
         env = make_layout_env(env_name, layout_seed)
         groups = _groups(env, open_doors)
-        for steps in memory_steps:
-            memory = _memory(env, steps)
-            for src, transform, config, frames in loaded:
+        for steps, memory, _ in _memories(env, memory_steps):
+            for (_, transform, _, _), label in zip(loaded, labels):
                 grid = bonus_grid(transform, env, open_doors=open_doors, memory=memory)
                 means = category_means(grid, groups)
                 overall = means["all"]["mean_bonus"]
                 for name, stats in means.items():
                     rows.append(
                         {
-                            "source": src,
-                            "setting": setting_label(config, None),
-                            "seed": config.get("seed"),
-                            "variant": config["intrinsic"]["vae"].get("variant", "kl"),
-                            "frames": frames,
+                            **label,
                             "env": env_name,
                             "layout_seed": layout_seed,
                             "memory_steps": steps,
@@ -789,14 +804,12 @@ def summarize_categories(table, *, reps: int = 2000, seed: int = 0):
         .agg(relative=("relative", "mean"), layouts=("layout_seed", "nunique"))
         .reset_index()
     )
+    mean_bonus = table.groupby(keys, sort=False)["mean_bonus"].mean()
     rows = []
     for key, group in per_run.groupby(keys, sort=False):
         iqm, low, high = iqm_interval(
             group["relative"].to_numpy(), reps=reps, seed=seed, names=key
         )
-        bonus = table
-        for name, value in zip(keys, key):
-            bonus = bonus[bonus[name] == value]
         rows.append(
             {
                 **dict(zip(keys, key)),
@@ -806,7 +819,7 @@ def summarize_categories(table, *, reps: int = 2000, seed: int = 0):
                 "relative_low": low,
                 "relative_high": high,
                 "runs_above_average": int((group["relative"] > 1.0).sum()),
-                "mean_bonus": float(bonus["mean_bonus"].mean()),
+                "mean_bonus": float(mean_bonus.loc[key]),
             }
         )
     return pd.DataFrame(rows)
@@ -1101,24 +1114,9 @@ def main(argv: Sequence[str] | None = None) -> Path:
         return _summary_main(args, sources)
     if args.layout_seeds is not None:
         _parser().error("--layout-seeds goes with --summary (a picture is one layout)")
-    loaded = [(src, *load_bonus_transform(src)) for src in sources]
-    env_names = {config["env"]["name"] for _, _, config, _ in loaded}
-    if args.env is None and len(env_names) > 1:
-        raise ValueError(
-            f"the checkpoints come from different envs {sorted(env_names)}: draw "
-            "them separately, or pick one layout with --env."
-        )
-    env_name = args.env or env_names.pop()
+    loaded, env_name = _load_sources(sources, args.env)
     env = make_layout_env(env_name, args.layout_seed)
-    if min(args.memory_steps) < 0:
-        raise ValueError(f"--memory-steps must be >= 0, got {args.memory_steps}.")
-    # one search for the longest memory; each K takes its first K states
-    images, directions, cells = solution_memory(env, max(args.memory_steps))
-    memories = []  # (steps, memory or None, cells)
-    for steps in args.memory_steps:
-        k = min(steps, len(cells))
-        memory = (images[:k], directions[:k]) if k else None
-        memories.append((k, memory, [tuple(c) for c in cells[:k].tolist()]))
+    memories = _memories(env, args.memory_steps)  # (steps, memory or None, cells)
     has_memory = any(m[0] for m in memories)
     groups = _groups(env, args.open_doors)
 
