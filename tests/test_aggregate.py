@@ -274,6 +274,50 @@ def test_a_sweep_aggregated_in_parts_equals_it_aggregated_at_once(sweep, tmp_pat
         assert (part / "runs.csv").read_bytes() == (whole / "runs.csv").read_bytes()
 
 
+def test_settings_keeps_only_the_runs_of_those_settings(sweep, tmp_path, capsys):
+    runs, data = sweep["root"] / "runs", sweep["out"] / "runs.csv"
+    common = ["--oracle", str(sweep["oracle"]), "--reps", str(REPS)]
+    vae = "bonus=vae,intrinsic.coef=0.1"  # the MiniGrid runs' label
+    some = [vae, "cheetah_vae"]
+    # new runs added to committed data, then only two settings kept
+    out = tmp_path / "some"
+    argv = [str(runs / "cheetah"), "--from-data", str(data), "--settings", *some]
+    assert main([*argv, "--out", str(out), *common]) == 0
+    full = read(sweep["out"], "runs.csv")
+    expected = full[full["setting"].isin(some)].reset_index(drop=True)
+    pd.testing.assert_frame_equal(read(out, "runs.csv"), expected)
+    assert set(read(out, "runs_meta.csv")["setting"]) == set(some)
+    assert set(read(out, "summary.csv")["setting"]) == set(some)
+    # a setting's final scores do not depend on the settings left out
+    kept, all_settings = (
+        summary_row(out, MINIGRID, vae),
+        summary_row(sweep["out"], MINIGRID, vae),
+    )
+    scores = [c for c in kept.index if c.endswith(("_iqm", "_ci_low", "_ci_high"))]
+    pd.testing.assert_series_equal(
+        kept[scores], all_settings[scores], check_names=False
+    )
+    # from the committed data alone
+    alone = tmp_path / "alone"
+    argv = ["--from-data", str(data), "--settings", "none", "--out", str(alone)]
+    assert main([*argv, *common]) == 0
+    assert set(read(alone, "runs.csv")["setting"]) == {"none"}
+    # in place it would drop committed runs: refused, the file untouched
+    before = data.read_bytes()
+    argv = ["--from-data", str(data), "--settings", vae, "--out", str(sweep["out"])]
+    with pytest.raises(SystemExit):
+        main([*argv, *common])
+    assert "would drop runs" in capsys.readouterr().err
+    assert data.read_bytes() == before
+    # a setting without runs is named, with those there are; nothing written
+    argv = ["--from-data", str(data), "--settings", "rnd", "--out", str(tmp_path / "x")]
+    with pytest.raises(SystemExit):
+        main([*argv, *common])
+    err = capsys.readouterr().err
+    assert "['rnd']" in err and "'cheetah_vae'" in err
+    assert not (tmp_path / "x").exists()
+
+
 def test_adding_a_shorter_run_than_the_committed_one_is_refused(
     sweep, tmp_path, capsys
 ):

@@ -22,6 +22,16 @@ the same task, setting and seed replaced by one that got at least as far, see
     python -m torchrl_surprise.experiments.aggregate runs/ddpg_mujoco/figure3 \\
         --from-data docs/results/figure3/runs.csv --out docs/results/figure3
 
+``--settings S [S ...]`` keeps only the runs of those settings, for instance a
+study that compares new runs with one setting of committed results (written to
+an ``--out`` other than the ``--from-data`` file's directory, whose runs it would
+drop otherwise)::
+
+    python -m torchrl_surprise.experiments.aggregate runs/ppo_minigrid/transfer_n4s4 \\
+        --from-data docs/results/ppo_n4s4/runs.csv --settings vae_elliptical \\
+        vae_elliptical_from_n3s4 vae_elliptical_from_n3s4_frozen \\
+        vae_elliptical_untrained --out docs/results/ppo_transfer_n4s4
+
 ``--all docs/results`` does that for every experiment under ``docs/results`` (each
 directory holding a ``runs.csv``, at the budget its ``summary.csv`` was written
 with); ``make figures`` runs it.
@@ -130,6 +140,7 @@ __all__ = [
     "frames_to_threshold",
     "improvement_probabilities",
     "iqm_interval",
+    "keep_settings",
     "main",
     "merge_run_data",
     "normalize_returns",
@@ -505,6 +516,36 @@ def merge_run_data(
     for column in ("total_frames", "last_frame"):
         merged_meta[column] = merged_meta[column].astype("Int64")
     return merged(earlier, data)[columns], merged_meta
+
+
+def keep_settings(
+    data: pd.DataFrame, meta: pd.DataFrame | None, settings: Sequence[str]
+) -> tuple[pd.DataFrame, pd.DataFrame | None]:
+    """The runs of ``settings`` only, in ``runs.csv`` data and its metadata.
+
+    Raises:
+        ValueError: a setting has no run, naming those there are.
+
+    Examples:
+        >>> data = pd.DataFrame({"task": "T", "setting": ["a", "b", "c"], "seed": 0,
+        ...                      "frames": 128, "metric": "m", "value": 1.0})
+        >>> keep_settings(data, None, ["a", "c"])[0]["setting"].tolist()
+        ['a', 'c']
+        >>> keep_settings(data, None, ["d"])
+        Traceback (most recent call last):
+        ...
+        ValueError: no runs of the settings ['d']; the data has ['a', 'b', 'c'].
+    """
+    present = set(data["setting"])
+    missing = [s for s in settings if s not in present]
+    if missing:
+        raise ValueError(
+            f"no runs of the settings {missing}; the data has {sorted(present)}."
+        )
+    data = data[data["setting"].isin(settings)].reset_index(drop=True)
+    if meta is not None:
+        meta = meta[meta["setting"].isin(settings)].reset_index(drop=True)
+    return data, meta
 
 
 def read_oracle(path: str | os.PathLike) -> dict[str, float]:
@@ -1360,6 +1401,12 @@ def _parser() -> argparse.ArgumentParser:
         "at the budget of its summary.csv) from its committed data",
     )
     parser.add_argument("--out", type=Path, help="output directory")
+    parser.add_argument(
+        "--settings",
+        nargs="+",
+        metavar="SETTING",
+        help="keep only the runs of these settings",
+    )
     parser.add_argument("--budget", type=int, help="frames of final performance")
     parser.add_argument(
         "--oracle",
@@ -1393,19 +1440,32 @@ def main(argv: Sequence[str] | None = None) -> int:
         oracle = read_oracle(args.oracle) if use_oracle else {}
         if args.from_data is not None and not args.from_data.is_file():
             raise FileNotFoundError(f"{args.from_data} does not exist")
-        if not args.runs:
+        if not args.runs and args.settings is None:
             runs_csv = args.from_data
         else:
-            runs = find_runs(args.runs)
-            data, meta = extract_run_data(runs, args.max_points), runs_metadata(runs)
-            if args.from_data is not None:
-                data, meta = merge_run_data(
-                    _read_runs_csv(args.from_data),
-                    _read_meta_beside(args.from_data),
-                    data,
-                    meta,
-                    source=str(args.from_data),
-                )
+            if not args.runs:
+                data = _read_runs_csv(args.from_data)
+                meta = _read_meta_beside(args.from_data)
+            else:
+                runs = find_runs(args.runs)
+                data = extract_run_data(runs, args.max_points)
+                meta = runs_metadata(runs)
+                if args.from_data is not None:
+                    data, meta = merge_run_data(
+                        _read_runs_csv(args.from_data),
+                        _read_meta_beside(args.from_data),
+                        data,
+                        meta,
+                        source=str(args.from_data),
+                    )
+            if args.settings is not None:
+                data, meta = keep_settings(data, meta, args.settings)
+                from_dir = args.from_data and args.from_data.resolve().parent
+                if from_dir == args.out.resolve():
+                    raise ValueError(
+                        f"--settings would drop runs from {args.from_data}: write "
+                        "the selection to another --out."
+                    )
             args.out.mkdir(parents=True, exist_ok=True)
             runs_csv = args.out / "runs.csv"
             data.to_csv(runs_csv, index=False, float_format="%.6g")
