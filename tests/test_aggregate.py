@@ -288,15 +288,14 @@ def test_settings_keeps_only_the_runs_of_those_settings(sweep, tmp_path, capsys)
     pd.testing.assert_frame_equal(read(out, "runs.csv"), expected)
     assert set(read(out, "runs_meta.csv")["setting"]) == set(some)
     assert set(read(out, "summary.csv")["setting"]) == set(some)
-    # a setting's final scores do not depend on the settings left out
-    kept, all_settings = (
-        summary_row(out, MINIGRID, vae),
-        summary_row(sweep["out"], MINIGRID, vae),
-    )
-    scores = [c for c in kept.index if c.endswith(("_iqm", "_ci_low", "_ci_high"))]
-    pd.testing.assert_series_equal(
-        kept[scores], all_settings[scores], check_names=False
-    )
+
+    # a setting's row does not depend on the settings left out, to the byte
+    # (frame counts stay integers beside an unnormalised task's empty cells)
+    def line(results):
+        text = (results / "summary.csv").read_text().splitlines()
+        return [row for row in text if row.startswith(f'{MINIGRID},"{vae}"')]
+
+    assert len(line(out)) == 1 and line(out) == line(sweep["out"])
     # from the committed data alone
     alone = tmp_path / "alone"
     argv = ["--from-data", str(data), "--settings", "none", "--out", str(alone)]

@@ -902,6 +902,12 @@ def summarize(
     for column in summary.columns:
         if column == "seeds_unfinished" or column.startswith("seeds_reaching_"):
             summary[column] = summary[column].astype("Int64")
+        elif column.startswith("median_frames_to_"):
+            # frame counts, "not reached" or None (unnormalised): kept as they
+            # are, whatever the other rows hold (no 8500 -> 8500.0)
+            summary[column] = pd.Series(
+                [row[column] for row in rows], index=summary.index, dtype=object
+            )
     return summary.round(4)
 
 
