@@ -30,9 +30,13 @@ docs: $(STAMP)
 	$(PY) -m sphinx -W --keep-going -b html docs docs/_build/html
 
 # Every table and figure of docs/results recomputed from the committed per-run data
-# (each experiment's runs.csv; no run directory needed).
+# (each experiment's runs.csv, each heatmap summary's rows per run and layout; no
+# run directory or checkpoint needed).
 figures: $(STAMP)
 	$(PY) -m torchrl_surprise.experiments.aggregate --all docs/results
+	for rows in docs/results/heatmaps/*_layouts.csv; do \
+		$(PY) -m torchrl_surprise.experiments.heatmap --from-layouts $$rows || exit 1; \
+	done
 
 # The speed targets, one table of side-by-side ratios (benchmarks/README.md);
 # installs the optional `bench` extra (the peer, torch-ac) first. ARGS=--quick: smoke run.

@@ -410,6 +410,15 @@ def test_summary_over_runs_and_layouts(tmp_path, capsys):
     report = pd.read_csv(out.with_name("n3s4_categories_report.csv"))
     assert len(report) == len(summary)
     assert f"{doorway['runs_above_average']} of 2" in set(report.iloc[:, -1])
+    # the same summary and table from the rows per run and layout alone
+    layouts_csv = out.with_name("n3s4_categories_layouts.csv")
+    again = tmp_path / "again"
+    again.mkdir()
+    copied = again / layouts_csv.name
+    copied.write_bytes(layouts_csv.read_bytes())
+    assert main(["--from-layouts", str(copied)]) == again / out.name
+    for name in (out.name, "n3s4_categories_report.csv"):
+        assert (again / name).read_bytes() == (out.parent / name).read_bytes(), name
     printed = capsys.readouterr().out
     assert "doorway" in printed and str(out) in printed
 
@@ -426,3 +435,5 @@ def test_summary_refuses_mixed_envs_and_layouts_without_summary(tmp_path):
         category_table([first, second], [0])
     with pytest.raises(SystemExit):
         main([str(first), "--layout-seeds", "0", "1", "--out", str(tmp_path / "x.png")])
+    with pytest.raises(FileNotFoundError, match="nowhere_layouts.csv"):
+        main(["--from-layouts", str(tmp_path / "nowhere_layouts.csv")])

@@ -66,6 +66,9 @@ the category above the average (:func:`summarize_categories`)::
 writes the summary there, beside it the rows per run and layout
 (``doorkey8x8_categories_layouts.csv``) and the summary formatted for the docs
 (``doorkey8x8_categories_report.csv``, :func:`summary_report`).
+``--from-layouts doorkey8x8_categories_layouts.csv`` recomputes the summary and
+its table from those rows alone (``make figures`` does it for every
+``docs/results/heatmaps/*_layouts.csv``).
 """
 
 from __future__ import annotations
@@ -692,8 +695,8 @@ def category_table(
     Returns:
         A :class:`pandas.DataFrame`, one row per run, layout, memory and category
         of :func:`category_means` (``all`` included): ``source, setting, seed,
-        variant, frames, env, layout_seed, memory_steps, category, unit, count,
-        mean_bonus, relative``.
+        variant, frames, env, layout_seed, open_doors, memory_steps, category,
+        unit, count, mean_bonus, relative``.
 
     Raises:
         ValueError: the checkpoints come from different envs and ``env_name``
@@ -747,6 +750,7 @@ def category_table(
                             **label,
                             "env": env_name,
                             "layout_seed": layout_seed,
+                            "open_doors": open_doors,
                             "memory_steps": steps,
                             "category": name,
                             "unit": stats["unit"],
@@ -1062,8 +1066,16 @@ def _parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--out",
-        required=True,
+        default=None,
         help="the PNG; the CSV goes beside it (--summary: the summary CSV)",
+    )
+    parser.add_argument(
+        "--from-layouts",
+        type=Path,
+        default=None,
+        metavar="LAYOUTS_CSV",
+        help="recompute a --summary from the rows per run and layout it wrote "
+        "(no checkpoint needed); --out defaults to the summary beside them",
     )
     parser.add_argument(
         "--open-doors",
@@ -1108,8 +1120,14 @@ def main(argv: Sequence[str] | None = None) -> Path:
     """
     args = _parser().parse_args(argv)
     sources = [*args.runs, *args.checkpoint]
+    if args.from_layouts is not None:
+        if sources:
+            _parser().error("--from-layouts takes no run directory or checkpoint")
+        return _summary_main(args, sources)
     if not sources:
         _parser().error("give at least one run directory or --checkpoint")
+    if args.out is None:
+        _parser().error("--out is required")
     if args.summary:
         return _summary_main(args, sources)
     if args.layout_seeds is not None:
@@ -1253,27 +1271,48 @@ def summary_report(summary):
     )
 
 
+_LAYOUTS_SUFFIX = "_layouts.csv"
+
+
 def _summary_main(args, sources: Sequence[str]) -> Path:
-    layout_seeds = args.layout_seeds or [args.layout_seed]
-    table = category_table(
-        sources,
-        layout_seeds,
-        env_name=args.env,
-        open_doors=args.open_doors,
-        memory_steps=args.memory_steps,
-    )
+    import pandas as pd
+
+    if args.from_layouts is not None:
+        layouts_path = args.from_layouts
+        if not layouts_path.is_file():
+            raise FileNotFoundError(f"{layouts_path} does not exist")
+        table = pd.read_csv(layouts_path, float_precision="round_trip")
+        name = layouts_path.name
+        default = (
+            name[: -len(_LAYOUTS_SUFFIX)] if name.endswith(_LAYOUTS_SUFFIX) else None
+        )
+        if args.out is None and default is None:
+            raise ValueError(
+                f"{layouts_path}: give --out (the name does not end in {_LAYOUTS_SUFFIX})"
+            )
+        out = Path(args.out) if args.out else layouts_path.with_name(default + ".csv")
+    else:
+        table = category_table(
+            sources,
+            args.layout_seeds or [args.layout_seed],
+            env_name=args.env,
+            open_doors=args.open_doors,
+            memory_steps=args.memory_steps,
+        )
+        out = Path(args.out)
+        layouts_path = out.with_name(out.stem + _LAYOUTS_SUFFIX)
     summary = summarize_categories(table)
-    out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    layouts_path = out.with_name(out.stem + "_layouts.csv")
     report_path = out.with_name(out.stem + "_report.csv")
-    table.to_csv(layouts_path, index=False)
+    if args.from_layouts is None:
+        table.to_csv(layouts_path, index=False)
     summary.to_csv(out, index=False)
     summary_report(summary).to_csv(report_path, index=False)
-    doors = "doors open" if args.open_doors else "doors as generated"
+    doors = "doors open" if table["open_doors"].all() else "doors as generated"
     print(
-        f"{table['env'].iloc[0]}, layouts {layout_seeds}, {doors}: each category's "
-        "mean bonus over the layout's mean (1.0: average), IQM [95% CI] over runs"
+        f"{table['env'].iloc[0]}, layouts {sorted(set(table['layout_seed']))}, "
+        f"{doors}: each category's mean bonus over the layout's mean (1.0: "
+        "average), IQM [95% CI] over runs"
     )
     print(
         f"{'setting':<24} {'frames':>8} {'memory':>6} {'category':<15} {'runs':>4} "
