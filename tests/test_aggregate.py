@@ -20,6 +20,8 @@ import pytest
 import yaml
 
 from torchrl_surprise.experiments.aggregate import (
+    _figure,
+    _save,
     extract_run_data,
     find_runs,
     main,
@@ -538,3 +540,28 @@ def test_a_setting_at_several_noise_levels_gets_one_label_per_level_and_a_figure
     assert (out / "levels.png").stat().st_size > 0
     # a results dir without levels has no such figure
     assert not (sweep["out"] / "levels.png").exists()
+
+
+@pytest.mark.parametrize("n_panels", [1, 3])
+def test_the_legend_fits_the_figure_and_clears_the_panels(tmp_path, n_panels):
+    # a one-panel figure with four long setting names (a single-task transfer
+    # sweep) would cut a 3-column legend at both edges: fewer columns, and the
+    # figure grows by the rows this adds, so the legend stays below the x labels
+    fig, axes = _figure(n_panels)
+    names = [f"vae_elliptical_from_n3s4_frozen_{i} (5 seeds)" for i in range(4)]
+    for ax in axes:
+        for name in names:
+            ax.plot([0, 1], [0, 1], label=name)
+        ax.set_xlabel("frames")
+    _save(fig, tmp_path / "f.png", "a title " * 20)
+    assert (tmp_path / "f.png").stat().st_size > 0
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    renderer = FigureCanvasAgg(fig).get_renderer()  # the closed figure's own is gone
+    (legend,) = fig.legends
+    box = legend.get_window_extent(renderer)
+    assert [t.get_text() for t in legend.get_texts()] == names
+    assert 0 <= box.x0 and box.x1 <= fig.bbox.width
+    assert box.y0 >= 0
+    for ax in axes:
+        assert box.y1 <= ax.get_tightbbox(renderer).y0 + 1

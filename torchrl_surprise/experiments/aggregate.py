@@ -1008,26 +1008,40 @@ def _save(fig, path: Path, title: str) -> Path:
     for ax in fig.axes:
         for handle, label in zip(*ax.get_legend_handles_labels()):
             handles.setdefault(label, handle)
-    if handles:
-        fig.legend(
+    # Up to 3 legend columns, fewer where the labels would not fit the figure's
+    # width (a one-panel figure with long setting names).
+    ncol = min(3, len(handles))
+    while handles:
+        legend = fig.legend(
             list(handles.values()),
             list(handles),
             loc="lower center",
             bbox_to_anchor=(0.5, 0.0),
-            ncol=min(3, len(handles)),
+            ncol=ncol,
             fontsize="small",
             frameon=False,
         )
+        width = legend.get_window_extent(fig.canvas.get_renderer()).width
+        if ncol == 1 or width <= fig.bbox.width:
+            break
+        legend.remove()
+        ncol -= 1
     rows = math.ceil(len(handles) / 3)
+    # each legend row past those of 3 columns (about 0.2 inch) makes it taller
+    extra_rows = math.ceil(len(handles) / max(ncol, 1)) - rows
     # Wrapped to the figure's width (about 11 characters an inch at this size):
     # a one-panel figure is too narrow for the title on one line.
     lines = textwrap.wrap(title, width=max(20, int(fig.get_figwidth() * 11)))
     fig.suptitle("\n".join(lines), fontsize="medium")
     # each extra title line (about 0.19 inch) makes the figure taller
-    height = fig.get_figheight() + 0.19 * (len(lines) - 1)
+    base_height = fig.get_figheight()
+    height = base_height + 0.19 * (len(lines) - 1) + 0.2 * extra_rows
     fig.set_figheight(height)
     top = 1.0 - (0.19 * len(lines) + 0.1) / height
-    fig.tight_layout(rect=(0, min(0.4, 0.05 * rows + 0.02), 1, top))
+    bottom = min(0.4, 0.05 * rows + 0.02)
+    if extra_rows:
+        bottom = (bottom * base_height + 0.2 * extra_rows) / height
+    fig.tight_layout(rect=(0, bottom, 1, top))
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
