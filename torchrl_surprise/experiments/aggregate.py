@@ -1026,22 +1026,17 @@ def _save(fig, path: Path, title: str) -> Path:
             break
         legend.remove()
         ncol -= 1
-    rows = math.ceil(len(handles) / 3)
-    # each legend row past those of 3 columns (about 0.2 inch) makes it taller
-    extra_rows = math.ceil(len(handles) / max(ncol, 1)) - rows
+    # The legend's rows (about 0.2 inch each) and each title line past the
+    # first (about 0.19 inch) add to the figure's height, not take from the panels.
+    rows = math.ceil(len(handles) / ncol) if handles else 0
     # Wrapped to the figure's width (about 11 characters an inch at this size):
     # a one-panel figure is too narrow for the title on one line.
     lines = textwrap.wrap(title, width=max(20, int(fig.get_figwidth() * 11)))
     fig.suptitle("\n".join(lines), fontsize="medium")
-    # each extra title line (about 0.19 inch) makes the figure taller
-    base_height = fig.get_figheight()
-    height = base_height + 0.19 * (len(lines) - 1) + 0.2 * extra_rows
+    height = fig.get_figheight() + 0.19 * (len(lines) - 1) + 0.2 * rows
     fig.set_figheight(height)
-    top = 1.0 - (0.19 * len(lines) + 0.1) / height
-    bottom = min(0.4, 0.05 * rows + 0.02)
-    if extra_rows:
-        bottom = (bottom * base_height + 0.2 * extra_rows) / height
-    fig.tight_layout(rect=(0, bottom, 1, top))
+    # tight_layout leaves room for the suptitle itself: the rect's top stays 1
+    fig.tight_layout(rect=(0, (0.2 * rows + 0.05) / height, 1, 1))
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
