@@ -276,6 +276,29 @@ def test_a_sweep_aggregated_in_parts_equals_it_aggregated_at_once(sweep, tmp_pat
         assert (part / "runs.csv").read_bytes() == (whole / "runs.csv").read_bytes()
 
 
+def test_earlier_data_without_its_runs_meta_merges_and_reads_as_finished(
+    sweep, tmp_path
+):
+    # a runs.csv copied away from its runs_meta.csv (or written before it existed):
+    # its runs have no completion recorded, so none is reported as unfinished; the
+    # new part's unfinished run (cheetah_vae seed 1) still is, as with full metadata
+    runs, oracle = sweep["root"] / "runs", ["--oracle", str(sweep["oracle"])]
+    common = [*oracle, "--reps", str(REPS)]
+    part = tmp_path / "part"
+    assert main([str(runs / "minigrid"), "--out", str(part), *common]) == 0
+    (part / "runs_meta.csv").unlink()
+    out = tmp_path / "out"
+    argv = [str(runs / "cheetah"), "--from-data", str(part / "runs.csv")]
+    assert main([*argv, "--out", str(out), *common]) == 0
+    assert (out / "runs.csv").read_bytes() == (sweep["out"] / "runs.csv").read_bytes()
+    status = (out / "status.rst").read_text()
+    assert status == (sweep["out"] / "status.rst").read_text()
+    assert "Unfinished when aggregated: cheetah_vae seed 1 (6k of 10k" in status
+    assert "bonus=" not in status.split("Unfinished")[1]
+    meta = read(out, "runs_meta.csv")
+    assert meta[meta["task"] == MINIGRID]["total_frames"].isna().all()
+
+
 def test_settings_keeps_only_the_runs_of_those_settings(sweep, tmp_path, capsys):
     runs, data = sweep["root"] / "runs", sweep["out"] / "runs.csv"
     common = ["--oracle", str(sweep["oracle"]), "--reps", str(REPS)]

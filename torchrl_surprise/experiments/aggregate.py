@@ -1297,8 +1297,14 @@ def status_text(summary: pd.DataFrame, meta: pd.DataFrame | None) -> str:
         for _, row in summary.iterrows()
     )
     text = f"Seeds that reached the budget, per setting: {counts}."
-    if meta is not None and "finished" in meta and not meta["finished"].all():
-        late = meta[~meta["finished"].astype(bool)]
+    # a run is unfinished only where its metadata says so: runs merged from data
+    # without a runs_meta.csv have no completion recorded (an empty cell)
+    late = (
+        None
+        if meta is None or "finished" not in meta
+        else meta[meta["finished"].astype(str) == "False"]
+    )
+    if late is not None and len(late):
         runs = ", ".join(
             f"{r.setting} seed {r.seed} ({int(r.last_frame) // 1000}k of "
             f"{int(r.total_frames) // 1000}k frames)"
@@ -1513,7 +1519,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         for _, run in meta[meta["finished"].astype(str) == "False"].iterrows():
             print(
                 f"Unfinished: {run['task']} {run['setting']} seed {run['seed']} "
-                f"({run['last_frame']} of {run['total_frames']} frames)"
+                f"({int(run['last_frame'])} of {int(run['total_frames'])} frames)"
             )
         for _, run in meta[meta["last_frame"].isna()].iterrows():
             print(f"No scalars logged yet, left out: {run['run_dir']}")
