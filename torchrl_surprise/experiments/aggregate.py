@@ -154,6 +154,7 @@ __all__ = [
     "setting_label",
     "split_level",
     "summarize",
+    "unfinished_runs",
 ]
 
 #: The scalars read from each run, and the short names of their summary columns.
@@ -857,10 +858,7 @@ def summarize(
         }
         if meta is not None:
             runs_meta = meta[(meta["task"] == task) & (meta["setting"] == setting)]
-            # "False" whether the column was read back as bools or as strings.
-            row["seeds_unfinished"] = int(
-                (runs_meta["finished"].astype(str) == "False").sum()
-            )
+            row["seeds_unfinished"] = len(unfinished_runs(runs_meta))
         for metric, name in METRICS.items():
             scores = finals.loc[
                 (finals["task"] == task)
@@ -1289,6 +1287,23 @@ def _frames_to(row: pd.Series, fraction: float) -> str:
     return f"{median} ({reached}/{int(row['seeds'])})"
 
 
+def unfinished_runs(meta: pd.DataFrame) -> pd.DataFrame:
+    """The rows of a ``runs_meta.csv`` table whose run had not reached its budget.
+
+    A run is unfinished only where its metadata says so: runs merged from data
+    without a ``runs_meta.csv`` have no completion recorded (an empty cell), and
+    the column reads back as bools or as strings.
+
+    Examples:
+        >>> meta = pd.DataFrame({"seed": [0, 1, 2], "finished": [True, False, ""]})
+        >>> unfinished_runs(meta)["seed"].tolist()
+        [1]
+    """
+    if "finished" not in meta:
+        return meta.iloc[:0]
+    return meta[meta["finished"].astype(str) == "False"]
+
+
 def status_text(summary: pd.DataFrame, meta: pd.DataFrame | None) -> str:
     """One paragraph (reStructuredText) on what the tables cover: seeds per
     setting and the runs that had not reached their budget when aggregated."""
@@ -1297,13 +1312,7 @@ def status_text(summary: pd.DataFrame, meta: pd.DataFrame | None) -> str:
         for _, row in summary.iterrows()
     )
     text = f"Seeds that reached the budget, per setting: {counts}."
-    # a run is unfinished only where its metadata says so: runs merged from data
-    # without a runs_meta.csv have no completion recorded (an empty cell)
-    late = (
-        None
-        if meta is None or "finished" not in meta
-        else meta[meta["finished"].astype(str) == "False"]
-    )
+    late = None if meta is None else unfinished_runs(meta)
     if late is not None and len(late):
         runs = ", ".join(
             f"{r.setting} seed {r.seed} ({int(r.last_frame) // 1000}k of "
@@ -1516,7 +1525,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if raw:
         print("Not normalised (no oracle return): " + ", ".join(raw))
     if meta is not None:
-        for _, run in meta[meta["finished"].astype(str) == "False"].iterrows():
+        for _, run in unfinished_runs(meta).iterrows():
             print(
                 f"Unfinished: {run['task']} {run['setting']} seed {run['seed']} "
                 f"({int(run['last_frame'])} of {int(run['total_frames'])} frames)"
