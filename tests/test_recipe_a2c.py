@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import signal
 import subprocess
 import sys
@@ -11,6 +12,7 @@ import pandas as pd
 import pytest
 import torch
 from _recipe_run import differing_logs, kill_after_checkpoint, wait_for_checkpoint
+from tensordict import TensorDict
 
 from torchrl_surprise.experiments import load_checkpoint, read_scalar_csv
 from torchrl_surprise.experiments.heatmap import load_bonus_transform
@@ -126,6 +128,39 @@ def test_same_seed_same_curve(tmp_path):
         losses[name] = read_scalar_csv(path)[1]
     assert (losses["a"] == losses["b"]).all()
     assert not (losses["a"] == losses["c"]).all()
+
+
+def test_standardize_advantage_centres_and_scales_the_batch_without_nans():
+    spec = importlib.util.spec_from_file_location(
+        "a2c_minigrid_utils", MAIN.with_name("utils.py")
+    )
+    utils = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(utils)
+    adv = torch.randn(4, 8, 1) * 3.0 + 2.0
+    data = TensorDict({"adv": adv.clone(), "other": adv.clone()}, batch_size=[4, 8])
+    out = utils.standardize_advantage(data, "adv")
+    assert out["adv"].mean().abs() < 1e-5
+    assert (out["adv"].std() - 1.0).abs() < 1e-5
+    assert torch.equal(out["other"], adv), "only the advantage changes"
+    flat = TensorDict({"advantage": torch.full((5, 1), 0.3)}, batch_size=[5])
+    assert torch.equal(
+        utils.standardize_advantage(flat)["advantage"], torch.zeros(5, 1)
+    )
+
+
+def test_normalized_advantages_change_the_policy_term_only(tmp_path):
+    # Same seed, same first batch: the critic's target is the unnormalised return,
+    # so the first update's critic loss is the same and the policy term is not.
+    args = ["bonus=none", "collector.total_frames=32", "seed=3"]
+    run_recipe(tmp_path / "raw", *args)
+    run_recipe(tmp_path / "norm", *args, "loss.normalize_advantage=true")
+
+    def first(run: str, name: str) -> float:
+        path = tmp_path / run / "logs" / "a2c" / "scalars" / "train" / f"{name}.csv"
+        return read_scalar_csv(path)[1][0]
+
+    assert first("raw", "loss_critic") == first("norm", "loss_critic")
+    assert first("raw", "loss_objective") != first("norm", "loss_objective")
 
 
 @pytest.mark.parametrize(

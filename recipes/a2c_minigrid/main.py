@@ -8,7 +8,8 @@ Every update, in this order:
 2. the bonus of every transition in D is computed in one batched pass with the
    current bonus model and mixed: ``r = r_ext + coef * normalize(r_int)``
    (the env's reward is kept as ``extrinsic_reward`` and is what is logged);
-3. GAE on the mixed reward, then one A2C step (TorchRL's A2CLoss);
+3. GAE on the mixed reward (centred and scaled over the batch with
+   ``loss.normalize_advantage``), then one A2C step (TorchRL's A2CLoss);
    with ``intrinsic.intrinsic_critic=true`` a second value head learns the
    intrinsic return instead and the advantage is ``A_ext + coef * A_int``
    (:class:`torchrl_surprise.TwoStreamAdvantage`, :class:`IntrinsicValueLoss`);
@@ -188,6 +189,10 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
             # Step 3: advantages: GAE on the (mixed) reward, or the two streams
             # (A_ext + coef * A_int, TwoStreamAdvantage).
             data = advantage(data)
+            if cfg.loss.normalize_advantage:
+                data = utils.standardize_advantage(
+                    data, loss_module.tensor_keys.advantage
+                )
         # The shared trunk once, with gradients: the losses' heads read its features.
         data = trunk(data)
         loss_td = loss_module(data)

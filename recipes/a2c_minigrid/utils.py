@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import torch
+from tensordict import TensorDictBase
 from torchrl.objectives import A2CLoss
 
 from torchrl_surprise.experiments.minigrid import (  # noqa: F401 (the recipe's builders)
@@ -32,3 +34,16 @@ def make_a2c(cfg, model, intrinsic_value, bonus_transform):
     )
     advantage, value_loss = make_advantage(cfg, model, intrinsic_value, bonus_transform)
     return loss, advantage, value_loss
+
+
+def standardize_advantage(data: TensorDictBase, key="advantage") -> TensorDictBase:
+    """Centres and scales the batch's advantages to mean 0 and std 1, in place.
+
+    ``loss.normalize_advantage``: what ``ClipPPOLoss(normalize_advantage=True)``
+    does to each minibatch (and Stable-Baselines3's A2C option), which TorchRL's
+    ``A2CLoss`` has no argument for; the same floor on the std as TorchRL's.
+    """
+    advantage = data[key]
+    scale = advantage.std().clamp_min(torch.finfo(torch.float).resolution)
+    data[key] = (advantage - advantage.mean()) / scale
+    return data
