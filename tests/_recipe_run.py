@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import signal
 import subprocess
@@ -9,6 +10,16 @@ import time
 from pathlib import Path
 
 from torchrl_surprise.experiments import load_checkpoint
+
+
+def load_recipe_utils(recipe_dir: Path):
+    """A recipe's ``utils.py``, loaded under its own name: every recipe has one."""
+    spec = importlib.util.spec_from_file_location(
+        f"{recipe_dir.name}_utils", recipe_dir / "utils.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def wait_for_checkpoint(ckpt_path: Path, min_frames: int, timeout: float = 120):

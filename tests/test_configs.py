@@ -3,11 +3,11 @@ recipe accepts, with the setting it is labelled by (no run: Hydra's compose API)
 
 from __future__ import annotations
 
-import importlib.util
 import itertools
 from pathlib import Path
 
 import pytest
+from _recipe_run import load_recipe_utils
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
@@ -20,12 +20,7 @@ EXPERIMENTS = [
 
 
 def recipe_check(recipe: str):
-    spec = importlib.util.spec_from_file_location(
-        f"{recipe}_utils", RECIPES / recipe / "utils.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.check_config
+    return load_recipe_utils(RECIPES / recipe).check_config
 
 
 def sweep_values(value) -> list[str]:

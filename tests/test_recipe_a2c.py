@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import signal
 import subprocess
 import sys
@@ -11,7 +10,12 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import torch
-from _recipe_run import differing_logs, kill_after_checkpoint, wait_for_checkpoint
+from _recipe_run import (
+    differing_logs,
+    kill_after_checkpoint,
+    load_recipe_utils,
+    wait_for_checkpoint,
+)
 from tensordict import TensorDict
 
 from torchrl_surprise.experiments import load_checkpoint, read_scalar_csv
@@ -131,11 +135,7 @@ def test_same_seed_same_curve(tmp_path):
 
 
 def test_standardize_advantage_centres_and_scales_the_batch_without_nans():
-    spec = importlib.util.spec_from_file_location(
-        "a2c_minigrid_utils", MAIN.with_name("utils.py")
-    )
-    utils = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(utils)
+    utils = load_recipe_utils(MAIN.parent)
     adv = torch.randn(4, 8, 1) * 3.0 + 2.0
     data = TensorDict({"adv": adv.clone(), "other": adv.clone()}, batch_size=[4, 8])
     out = utils.standardize_advantage(data, "adv")

@@ -3,14 +3,13 @@ config checks in-process."""
 
 from __future__ import annotations
 
-import importlib.util
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 import torch
-from _recipe_run import differing_logs, kill_after_checkpoint
+from _recipe_run import differing_logs, kill_after_checkpoint, load_recipe_utils
 from hydra import compose, initialize_config_dir
 
 from torchrl_surprise.experiments import load_checkpoint, read_scalar_csv
@@ -30,16 +29,6 @@ TINY = [
     "checkpoint.interval_frames=128",
 ]
 VAE_RUN = ["bonus=vae", "collector.total_frames=1024", "seed=3"]
-
-
-def _load_utils():
-    # Loaded under its own name: the other recipes have a utils.py too.
-    spec = importlib.util.spec_from_file_location(
-        "ppo_minigrid_utils", RECIPE / "utils.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def run_recipe(run_dir: Path, *overrides: str, check: bool = True):
@@ -116,7 +105,7 @@ def test_bad_config_fails_clearly_on_the_command_line(tmp_path):
     ],
 )
 def test_bad_config_is_refused_before_anything_runs(override, message):
-    utils = _load_utils()
+    utils = load_recipe_utils(RECIPE)
     with initialize_config_dir(config_dir=str(RECIPE), version_base=None):
         cfg = compose(config_name="config", overrides=[*TINY, override])
     with pytest.raises(ValueError, match=message):
