@@ -475,9 +475,9 @@ def test_the_recipes_losses_on_the_shared_trunk_equal_one_trunk_per_head(recipe)
     and give the losses its heads; the two-stream advantage takes one pass of a
     two-headed critic. Same advantages and the same gradients as the losses and
     critics built on whole operators (one trunk pass per head)."""
-    import importlib.util
     from pathlib import Path
 
+    from _recipe_run import load_recipe_utils
     from hydra import compose, initialize_config_dir
     from torchrl.objectives import A2CLoss, ClipPPOLoss
 
@@ -485,9 +485,7 @@ def test_the_recipes_losses_on_the_shared_trunk_equal_one_trunk_per_head(recipe)
     from torchrl_surprise.experiments.minigrid import make_collector, shared_trunk
 
     root = Path(__file__).resolve().parents[1] / "recipes" / recipe
-    spec = importlib.util.spec_from_file_location(f"{recipe}_utils", root / "utils.py")
-    utils = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(utils)
+    utils = load_recipe_utils(root)
     with initialize_config_dir(config_dir=str(root), version_base=None):
         cfg = compose("config", overrides=["bonus=vae", "env.num_envs=4"])
     torch.manual_seed(0)

@@ -3,7 +3,6 @@ pieces in-process: the replay-buffer bonus equals the env-path bonus."""
 
 from __future__ import annotations
 
-import importlib.util
 import shlex
 import signal
 import subprocess
@@ -14,7 +13,12 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
-from _recipe_run import differing_logs, kill_after_checkpoint, wait_for_checkpoint
+from _recipe_run import (
+    differing_logs,
+    kill_after_checkpoint,
+    load_recipe_utils,
+    wait_for_checkpoint,
+)
 from hydra import compose, initialize_config_dir
 
 from torchrl_surprise.experiments import aggregate, load_checkpoint, read_scalar_csv
@@ -42,17 +46,7 @@ TINY = [
 ]
 
 
-def _load_utils():
-    # Loaded under its own name: the A2C recipe has a utils.py too.
-    spec = importlib.util.spec_from_file_location(
-        "ddpg_mujoco_utils", RECIPE / "utils.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-utils = _load_utils()
+utils = load_recipe_utils(RECIPE)
 
 
 def make_cfg(*overrides: str):
