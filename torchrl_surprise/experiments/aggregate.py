@@ -1085,7 +1085,7 @@ def plot_curves(
             point, interval = _interval_estimate(
                 curves[:, None, covered], _iqm_per_column, reps, stream
             )
-            label = f"{setting} ({len(curves)} seeds)"
+            label = f"{setting} ({len(curves)} seed{'' if len(curves) == 1 else 's'})"
             ax.plot(grid[covered], point, color=colors[setting], label=label)
             ax.fill_between(
                 grid[covered],
