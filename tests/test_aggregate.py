@@ -293,7 +293,11 @@ def test_earlier_data_without_its_runs_meta_merges_and_reads_as_finished(
     assert (out / "runs.csv").read_bytes() == (sweep["out"] / "runs.csv").read_bytes()
     status = (out / "status.rst").read_text()
     assert status == (sweep["out"] / "status.rst").read_text()
-    assert "Unfinished when aggregated: cheetah_vae seed 1 (6k of 10k" in status
+    # the sweep covers two tasks, so each setting is named with its task
+    assert (
+        f"Unfinished when aggregated: {CHEETAH} cheetah_vae seed 1 (6k of 10k" in status
+    )
+    assert f"{CHEETAH} cheetah_vae 2, {CHEETAH} none 2, {MINIGRID} " in status
     assert "bonus=" not in status.split("Unfinished")[1]
     meta = read(out, "runs_meta.csv")
     assert meta[meta["task"] == MINIGRID]["total_frames"].isna().all()

@@ -1306,16 +1306,29 @@ def unfinished_runs(meta: pd.DataFrame) -> pd.DataFrame:
 
 def status_text(summary: pd.DataFrame, meta: pd.DataFrame | None) -> str:
     """One paragraph (reStructuredText) on what the tables cover: seeds per
-    setting and the runs that had not reached their budget when aggregated."""
+    setting and the runs that had not reached their budget when aggregated.
+
+    Where the summary covers several tasks, each setting is named with its task.
+
+    Examples:
+        >>> summary = pd.DataFrame({"task": ["A", "B"], "setting": "s", "seeds": [3, 1]})
+        >>> print(status_text(summary, None), end="")
+        Seeds that reached the budget, per setting: A s 3, B s 1.
+    """
+    several = summary["task"].nunique() > 1
+
+    def name(row) -> str:
+        return f"{row['task']} {row['setting']}" if several else str(row["setting"])
+
     counts = ", ".join(
-        f"{row['setting']} {int(row.get('train_return_seeds', row['seeds']))}"
+        f"{name(row)} {int(row.get('train_return_seeds', row['seeds']))}"
         for _, row in summary.iterrows()
     )
     text = f"Seeds that reached the budget, per setting: {counts}."
     late = None if meta is None else unfinished_runs(meta)
     if late is not None and len(late):
         runs = ", ".join(
-            f"{r.setting} seed {r.seed} ({int(r.last_frame) // 1000}k of "
+            f"{name(r._asdict())} seed {r.seed} ({int(r.last_frame) // 1000}k of "
             f"{int(r.total_frames) // 1000}k frames)"
             for r in late.itertuples()
         )
