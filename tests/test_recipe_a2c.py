@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pandas as pd
@@ -293,6 +295,62 @@ def test_sweep_runs_each_job_once_and_a_rerun_starts_no_new_work(
     assert sorted(summary["setting"]) == ["none", "vae"]
     assert (summary["seeds"] == 2).all()
     assert summary[["train_return_iqm", "train_return_ci_low"]].notna().all().all()
+
+
+def test_sigterm_to_a_local_sweep_stops_every_job_and_starts_no_new_one(tmp_path):
+    # 4 jobs, 2 at a time: SIGTERM to the sweep's process group (what a scheduler or
+    # `kill -- -PGID` sends) must save the 2 running jobs and leave no joblib worker
+    # behind to start the 2 queued ones with no parent.
+    sweep_dir = tmp_path / "sweep"
+    sweep = [
+        sys.executable,
+        str(MAIN),
+        "-m",
+        "+experiment=tiny",
+        f"hydra.sweep.dir={sweep_dir}",
+        "hydra.launcher.n_jobs=2",
+        "collector.total_frames=1000000",
+        "checkpoint.interval_frames=128",
+        "eval.interval_frames=1000000",
+        "logger.log_interval=1",
+    ]
+    err = tmp_path / "stderr.txt"
+    with open(err, "w") as stderr:
+        proc = subprocess.Popen(
+            sweep, stdout=subprocess.DEVNULL, stderr=stderr, start_new_session=True
+        )
+    try:
+        deadline = time.time() + 300
+        while len(list(sweep_dir.glob("*/checkpoint.pt"))) < 2:
+            assert time.time() < deadline, "the sweep wrote no 2 checkpoints"
+            assert proc.poll() is None, err.read_text()[-3000:]
+            time.sleep(0.2)
+        started = sorted(p.parent.name for p in sweep_dir.glob("*/.hydra"))
+        os.killpg(proc.pid, signal.SIGTERM)
+        proc.wait(timeout=120)
+        deadline = time.time() + 60
+        while group_alive(proc.pid):
+            assert time.time() < deadline, "a process of the sweep outlived SIGTERM"
+            time.sleep(0.2)
+    finally:
+        if group_alive(proc.pid):
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert sorted(p.parent.name for p in sweep_dir.glob("*/.hydra")) == started
+    assert len(started) == 2, started
+    for name in started:
+        frames = load_checkpoint(sweep_dir / name / "checkpoint.pt")["frames"]
+        steps, _ = read_scalar_csv(
+            sweep_dir / name / "logs/a2c/scalars/train/reward.csv"
+        )
+        assert steps[-1] == frames, f"{name}: the stop saved no final checkpoint"
+
+
+def group_alive(pgid: int) -> bool:
+    try:
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return False
+    return True
 
 
 @pytest.mark.parametrize(

@@ -32,7 +32,6 @@ uninterrupted run would have). Ctrl-C or SIGTERM saves a checkpoint and exits.
 
 from __future__ import annotations
 
-import sys
 import time
 from pathlib import Path
 
@@ -70,7 +69,6 @@ from torchrl_surprise.experiments import (
     plot_learning_curves,
     prepare_run,
     read_scalar_csv,
-    resume_command,
 )
 
 # Sweep launchers pickle this script's task function for their worker processes,
@@ -294,15 +292,9 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         if frames >= progress.next_ckpt:
             progress.next_ckpt += cfg.checkpoint.interval_frames
             checkpointer.save()
-        if stop:
-            checkpointer.save()
-            pbar.close()
-            collector.shutdown()
-            print(
-                f"{stop.name}: stopped at {frames} frames, checkpoint saved. "
-                f"Resume with: {resume_command(run_dir)}"
-            )
-            sys.exit(128 + stop.received)
+        stop.save_and_exit(
+            checkpointer, frames, run_dir, pbar.close, collector.shutdown
+        )
     stop.restore()
     pbar.close()
     checkpointer.save()

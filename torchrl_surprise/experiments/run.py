@@ -5,6 +5,8 @@ from __future__ import annotations
 import copyreg
 import csv
 import importlib
+import logging
+import multiprocessing
 import os
 import random
 import shutil
@@ -14,7 +16,7 @@ import types
 from collections import deque
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 import torch
@@ -460,12 +462,30 @@ class StopSignal:
             f"{self.name}: stopped at {frames} frames, checkpoint saved. "
             f"Resume with: {resume_command(run_dir)}"
         )
-        sys.exit(128 + self.received)
+        _exit_process(128 + self.received)
 
     def restore(self) -> None:
         """Puts back the handlers that were installed before."""
         for sig, handler in self._previous.items():
             signal.signal(sig, handler)
+
+
+def _exit_process(code: int) -> NoReturn:
+    """Exits with ``code``, also from a launcher's worker process.
+
+    In the main process this is :func:`sys.exit`. A worker of a process pool (the
+    local joblib launcher's loky workers) catches :class:`SystemExit` as a job's
+    error and goes on to the sweep's next job, even after the process that
+    launched the sweep died of the same signal; so a worker flushes its output
+    and ends at once with :func:`os._exit`. Files the run writes (checkpoints,
+    CSV logs) are closed or flushed before this is called.
+    """
+    if multiprocessing.parent_process() is None:
+        sys.exit(code)
+    for stream in (sys.stdout, sys.stderr):
+        stream.flush()
+    logging.shutdown()
+    os._exit(code)
 
 
 def resume_command(run_dir: str | os.PathLike) -> str:
