@@ -452,7 +452,10 @@ class StopSignal:
         self, checkpointer: Checkpointer, frames: int, run_dir, *closers
     ) -> None:
         """If a signal came: save, run ``closers`` (progress bar, collector), print
-        one line on how to resume, and exit with status ``128 + signal``."""
+        one line on how to resume, and exit with status ``128 + signal``.
+
+        In a launcher's worker process (the local joblib launcher), the exit is
+        immediate (:func:`os._exit`), so that the worker starts no queued job."""
         if not self:
             return
         checkpointer.save()
