@@ -346,6 +346,35 @@ def test_settings_keeps_only_the_runs_of_those_settings(sweep, tmp_path, capsys)
     assert not (tmp_path / "x").exists()
 
 
+def test_tasks_keeps_only_the_runs_of_those_tasks(sweep, tmp_path, capsys):
+    data = sweep["out"] / "runs.csv"
+    common = ["--oracle", str(sweep["oracle"]), "--reps", str(REPS)]
+    out = tmp_path / "cheetah"
+    argv = ["--from-data", str(data), "--tasks", CHEETAH, "--settings", "none"]
+    assert main([*argv, "--out", str(out), *common]) == 0
+    full = read(sweep["out"], "runs.csv")
+    keep = (full["task"] == CHEETAH) & (full["setting"] == "none")
+    expected = full[keep].reset_index(drop=True)
+    # (the selected returns happen to be whole numbers: read back as integers)
+    pd.testing.assert_frame_equal(read(out, "runs.csv"), expected, check_dtype=False)
+    assert set(read(out, "runs_meta.csv")["task"]) == {CHEETAH}
+    assert set(read(out, "summary.csv")["task"]) == {CHEETAH}
+    # in place it would drop committed runs: refused, the file untouched
+    before = data.read_bytes()
+    argv = ["--from-data", str(data), "--tasks", CHEETAH, "--out", str(sweep["out"])]
+    with pytest.raises(SystemExit):
+        main([*argv, *common])
+    assert "--tasks would drop runs" in capsys.readouterr().err
+    assert data.read_bytes() == before
+    # a task without runs is named, with those there are
+    argv = ["--from-data", str(data), "--tasks", "Ant-v5", "--out", str(tmp_path / "x")]
+    with pytest.raises(SystemExit):
+        main([*argv, *common])
+    err = capsys.readouterr().err
+    assert "['Ant-v5']" in err and f"'{CHEETAH}'" in err
+    assert not (tmp_path / "x").exists()
+
+
 def test_adding_a_shorter_run_than_the_committed_one_is_refused(
     sweep, tmp_path, capsys
 ):

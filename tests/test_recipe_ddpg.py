@@ -331,6 +331,48 @@ def test_replay_buffer_bonus_equals_env_bonus():
     env.close()
 
 
+@pytest.mark.parametrize("delay_actor", [False, True])
+def test_td_target_takes_its_next_action_from_the_actor_or_a_target_actor(
+    delay_actor,
+):
+    torch.manual_seed(0)
+    cfg = make_cfg(f"loss.delay_actor={delay_actor}", "network.hidden_sizes=[32,32]")
+    env = utils.make_env(cfg, 2, seed=0)
+    _, _, _, loss, target_updater = utils.make_ddpg(cfg, env)
+    batch = env.rollout(20, break_when_any_done=False).reshape(-1)
+    has_target = any("target_actor_network_params" in k for k in loss.state_dict())
+    assert has_target == delay_actor  # and so it is checkpointed with the loss
+
+    def critic_loss() -> torch.Tensor:
+        with torch.no_grad():
+            return loss.loss_value(batch.clone())[0]
+
+    before = critic_loss()
+    # The actor's weights (not its action-bound buffers) move; the critic and its
+    # target do not.
+    actor = loss.actor_network_params.flatten_keys()
+    weights = [k for k, p in actor.items() if isinstance(p, torch.nn.Parameter)]
+    assert weights
+    with torch.no_grad():
+        for key in weights:
+            actor[key].add_(0.5)
+    moved = critic_loss()
+    if not delay_actor:
+        assert not torch.allclose(moved, before)  # next action from the actor
+        env.close()
+        return
+    torch.testing.assert_close(moved, before)  # from the target actor
+    old_target = loss.target_actor_network_params.flatten_keys().clone()
+    target_updater.step()  # Polyak: target <- (1 - tau) target + tau actor
+    target = loss.target_actor_network_params.flatten_keys()
+    tau = cfg.optim.tau
+    for key in weights:
+        expected = (1 - tau) * old_target[key] + tau * actor[key]
+        torch.testing.assert_close(target[key], expected)
+    assert not torch.allclose(critic_loss(), before)
+    env.close()
+
+
 @pytest.mark.parametrize(
     "override, message",
     [
@@ -343,6 +385,7 @@ def test_replay_buffer_bonus_equals_env_bonus():
         ("collector.total_frames=-5", "collector.total_frames must be a positive"),
         ("collector.total_frames=1500", "must be a multiple of"),
         ("optim.batch_size=0", "optim.batch_size must be a positive"),
+        ("loss.delay_actor=maybe", "loss.delay_actor must be true or false"),
         ("env.num_envs=3", "must be a multiple of env.num_envs"),
     ],
 )

@@ -15,8 +15,9 @@ For every collected batch of ``frames_per_batch`` transitions, in this order:
       normalised with the current statistics and its bonus is recomputed with the
       current VAE: ``r = r_ext + coef * normalize(KL(q(z|s') || N(0, I)))``, so the
       bonus of an old transition is never stale;
-   b. one critic step (TorchRL's DDPGLoss, TD(0) target with the target critic),
-      one actor step, then a Polyak update of the target critic (SoftUpdate);
+   b. one critic step (TorchRL's DDPGLoss, TD(0) target with the target critic,
+      and the target actor with ``loss.delay_actor=true``), one actor step, then a
+      Polyak update of the target networks (SoftUpdate);
    c. every ``intrinsic.update_every`` updates, one VAE step (VAELoss) on its own
       replay sample of normalised next observations.
 
@@ -166,7 +167,7 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         ckpt_path,
         {
             "progress": progress,
-            # actor, critic and the target critic
+            # actor, critic and the target networks
             "loss_module": loss_module,
             "target_updater": target_updater,
             "noise": noise,

@@ -67,6 +67,10 @@ def check_config(cfg) -> None:
             "dimension) and replay samples are single transitions: use it with "
             "intrinsic.bonus_at=collection, or pick reward_std / zscore / none."
         )
+    if not isinstance(cfg.loss.delay_actor, bool):
+        raise ValueError(
+            f"loss.delay_actor must be true or false, got {cfg.loss.delay_actor!r}."
+        )
     if cfg.exploration.noise not in NOISES:
         raise ValueError(
             f"exploration.noise must be one of {NOISES}, got {cfg.exploration.noise!r}."
@@ -264,7 +268,7 @@ def make_ddpg(cfg, env):
         actor,
         critic,
         loss_function="l2",
-        delay_actor=False,
+        delay_actor=cfg.loss.delay_actor,
         delay_value=True,
     )
     loss.make_value_estimator(gamma=cfg.optim.gamma)

@@ -32,6 +32,8 @@ drop otherwise)::
         vae_elliptical_from_n3s4 vae_elliptical_from_n3s4_frozen \\
         vae_elliptical_untrained --out docs/results/ppo_transfer_n4s4
 
+``--tasks T [T ...]`` does the same for tasks (env ids).
+
 ``--all docs/results`` does that for every experiment under ``docs/results`` (each
 directory holding a ``runs.csv``, at the budget its ``summary.csv`` was written
 with); ``make figures`` runs it.
@@ -141,6 +143,7 @@ __all__ = [
     "improvement_probabilities",
     "iqm_interval",
     "keep_settings",
+    "keep_tasks",
     "main",
     "merge_run_data",
     "normalize_returns",
@@ -537,15 +540,36 @@ def keep_settings(
         ...
         ValueError: no runs of the settings ['d']; the data has ['a', 'b', 'c'].
     """
-    present = set(data["setting"])
-    missing = [s for s in settings if s not in present]
+    return _keep_runs(data, meta, "setting", settings)
+
+
+def keep_tasks(
+    data: pd.DataFrame, meta: pd.DataFrame | None, tasks: Sequence[str]
+) -> tuple[pd.DataFrame, pd.DataFrame | None]:
+    """The runs of ``tasks`` only, in ``runs.csv`` data and its metadata.
+
+    Raises:
+        ValueError: a task has no run, naming those there are.
+
+    Examples:
+        >>> data = pd.DataFrame({"task": ["A", "B"], "setting": "s", "seed": 0,
+        ...                      "frames": 128, "metric": "m", "value": 1.0})
+        >>> keep_tasks(data, None, ["B"])[0]["task"].tolist()
+        ['B']
+    """
+    return _keep_runs(data, meta, "task", tasks)
+
+
+def _keep_runs(data, meta, column: str, values: Sequence[str]):
+    present = set(data[column])
+    missing = [v for v in values if v not in present]
     if missing:
         raise ValueError(
-            f"no runs of the settings {missing}; the data has {sorted(present)}."
+            f"no runs of the {column}s {missing}; the data has {sorted(present)}."
         )
-    data = data[data["setting"].isin(settings)].reset_index(drop=True)
+    data = data[data[column].isin(values)].reset_index(drop=True)
     if meta is not None:
-        meta = meta[meta["setting"].isin(settings)].reset_index(drop=True)
+        meta = meta[meta[column].isin(values)].reset_index(drop=True)
     return data, meta
 
 
@@ -1450,6 +1474,12 @@ def _parser() -> argparse.ArgumentParser:
         metavar="SETTING",
         help="keep only the runs of these settings",
     )
+    parser.add_argument(
+        "--tasks",
+        nargs="+",
+        metavar="TASK",
+        help="keep only the runs of these tasks (env ids)",
+    )
     parser.add_argument("--budget", type=int, help="frames of final performance")
     parser.add_argument(
         "--oracle",
@@ -1483,7 +1513,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         oracle = read_oracle(args.oracle) if use_oracle else {}
         if args.from_data is not None and not args.from_data.is_file():
             raise FileNotFoundError(f"{args.from_data} does not exist")
-        if not args.runs and args.settings is None:
+        selecting = args.settings is not None or args.tasks is not None
+        if not args.runs and not selecting:
             runs_csv = args.from_data
         else:
             if not args.runs:
@@ -1503,12 +1534,15 @@ def main(argv: Sequence[str] | None = None) -> int:
                     )
             if args.settings is not None:
                 data, meta = keep_settings(data, meta, args.settings)
-                from_dir = args.from_data and args.from_data.resolve().parent
-                if from_dir == args.out.resolve():
-                    raise ValueError(
-                        f"--settings would drop runs from {args.from_data}: write "
-                        "the selection to another --out."
-                    )
+            if args.tasks is not None:
+                data, meta = keep_tasks(data, meta, args.tasks)
+            from_dir = args.from_data and args.from_data.resolve().parent
+            if selecting and from_dir == args.out.resolve():
+                option = "--settings" if args.settings is not None else "--tasks"
+                raise ValueError(
+                    f"{option} would drop runs from {args.from_data}: write "
+                    "the selection to another --out."
+                )
             args.out.mkdir(parents=True, exist_ok=True)
             runs_csv = args.out / "runs.csv"
             data.to_csv(runs_csv, index=False, float_format="%.6g")
