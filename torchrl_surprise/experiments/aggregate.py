@@ -142,8 +142,8 @@ __all__ = [
     "frames_to_threshold",
     "improvement_probabilities",
     "iqm_interval",
+    "keep_runs",
     "keep_settings",
-    "keep_tasks",
     "main",
     "merge_run_data",
     "normalize_returns",
@@ -525,51 +525,57 @@ def merge_run_data(
 def keep_settings(
     data: pd.DataFrame, meta: pd.DataFrame | None, settings: Sequence[str]
 ) -> tuple[pd.DataFrame, pd.DataFrame | None]:
-    """The runs of ``settings`` only, in ``runs.csv`` data and its metadata.
-
-    Raises:
-        ValueError: a setting has no run, naming those there are.
+    """The runs of ``settings`` only: :func:`keep_runs` with ``settings`` alone.
 
     Examples:
         >>> data = pd.DataFrame({"task": "T", "setting": ["a", "b", "c"], "seed": 0,
         ...                      "frames": 128, "metric": "m", "value": 1.0})
         >>> keep_settings(data, None, ["a", "c"])[0]["setting"].tolist()
         ['a', 'c']
-        >>> keep_settings(data, None, ["d"])
-        Traceback (most recent call last):
-        ...
-        ValueError: no runs of the settings ['d']; the data has ['a', 'b', 'c'].
     """
-    return _keep_runs(data, meta, "setting", settings)
+    return keep_runs(data, meta, settings=settings)
 
 
-def keep_tasks(
-    data: pd.DataFrame, meta: pd.DataFrame | None, tasks: Sequence[str]
+def keep_runs(
+    data: pd.DataFrame,
+    meta: pd.DataFrame | None,
+    *,
+    settings: Sequence[str] | None = None,
+    tasks: Sequence[str] | None = None,
 ) -> tuple[pd.DataFrame, pd.DataFrame | None]:
-    """The runs of ``tasks`` only, in ``runs.csv`` data and its metadata.
+    """The runs of some settings and tasks, in ``runs.csv`` data and its metadata.
+
+    Args:
+        data: ``runs.csv`` data (columns ``task``, ``setting``, ...).
+        meta: its ``runs_meta.csv``, or None.
+        settings: keep only these settings (None: all).
+        tasks: keep only these tasks, env ids (None: all).
 
     Raises:
-        ValueError: a task has no run, naming those there are.
+        ValueError: a setting or task has no run, naming those there are.
 
     Examples:
-        >>> data = pd.DataFrame({"task": ["A", "B"], "setting": "s", "seed": 0,
-        ...                      "frames": 128, "metric": "m", "value": 1.0})
-        >>> keep_tasks(data, None, ["B"])[0]["task"].tolist()
-        ['B']
+        >>> data = pd.DataFrame({"task": ["A", "A", "B"], "setting": ["a", "b", "a"],
+        ...                      "seed": 0, "frames": 128, "metric": "m", "value": 1.0})
+        >>> keep_runs(data, None, settings=["a"], tasks=["B"])[0].shape[0]
+        1
+        >>> keep_runs(data, None, settings=["d"])
+        Traceback (most recent call last):
+        ...
+        ValueError: no runs of the settings ['d']; the data has ['a', 'b'].
     """
-    return _keep_runs(data, meta, "task", tasks)
-
-
-def _keep_runs(data, meta, column: str, values: Sequence[str]):
-    present = set(data[column])
-    missing = [v for v in values if v not in present]
-    if missing:
-        raise ValueError(
-            f"no runs of the {column}s {missing}; the data has {sorted(present)}."
-        )
-    data = data[data[column].isin(values)].reset_index(drop=True)
-    if meta is not None:
-        meta = meta[meta[column].isin(values)].reset_index(drop=True)
+    for column, values in (("setting", settings), ("task", tasks)):
+        if values is None:
+            continue
+        present = set(data[column])
+        missing = [v for v in values if v not in present]
+        if missing:
+            raise ValueError(
+                f"no runs of the {column}s {missing}; the data has {sorted(present)}."
+            )
+        data = data[data[column].isin(values)].reset_index(drop=True)
+        if meta is not None:
+            meta = meta[meta[column].isin(values)].reset_index(drop=True)
     return data, meta
 
 
@@ -1532,10 +1538,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                         meta,
                         source=str(args.from_data),
                     )
-            if args.settings is not None:
-                data, meta = keep_settings(data, meta, args.settings)
-            if args.tasks is not None:
-                data, meta = keep_tasks(data, meta, args.tasks)
+            if selecting:
+                data, meta = keep_runs(
+                    data, meta, settings=args.settings, tasks=args.tasks
+                )
             from_dir = args.from_data and args.from_data.resolve().parent
             if selecting and from_dir == args.out.resolve():
                 option = "--settings" if args.settings is not None else "--tasks"
