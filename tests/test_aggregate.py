@@ -303,7 +303,7 @@ def test_earlier_data_without_its_runs_meta_merges_and_reads_as_finished(
     assert meta[meta["task"] == MINIGRID]["total_frames"].isna().all()
 
 
-def test_settings_keeps_only_the_runs_of_those_settings(sweep, tmp_path, capsys):
+def test_settings_keeps_only_the_runs_of_those_settings(sweep, tmp_path):
     runs, data = sweep["root"] / "runs", sweep["out"] / "runs.csv"
     common = ["--oracle", str(sweep["oracle"]), "--reps", str(REPS)]
     vae = "bonus=vae,intrinsic.coef=0.1"  # the MiniGrid runs' label
@@ -330,23 +330,9 @@ def test_settings_keeps_only_the_runs_of_those_settings(sweep, tmp_path, capsys)
     argv = ["--from-data", str(data), "--settings", "none", "--out", str(alone)]
     assert main([*argv, *common]) == 0
     assert set(read(alone, "runs.csv")["setting"]) == {"none"}
-    # in place it would drop committed runs: refused, the file untouched
-    before = data.read_bytes()
-    argv = ["--from-data", str(data), "--settings", vae, "--out", str(sweep["out"])]
-    with pytest.raises(SystemExit):
-        main([*argv, *common])
-    assert "would drop runs" in capsys.readouterr().err
-    assert data.read_bytes() == before
-    # a setting without runs is named, with those there are; nothing written
-    argv = ["--from-data", str(data), "--settings", "rnd", "--out", str(tmp_path / "x")]
-    with pytest.raises(SystemExit):
-        main([*argv, *common])
-    err = capsys.readouterr().err
-    assert "['rnd']" in err and "'cheetah_vae'" in err
-    assert not (tmp_path / "x").exists()
 
 
-def test_tasks_keeps_only_the_runs_of_those_tasks(sweep, tmp_path, capsys):
+def test_tasks_keeps_only_the_runs_of_those_tasks(sweep, tmp_path):
     data = sweep["out"] / "runs.csv"
     common = ["--oracle", str(sweep["oracle"]), "--reps", str(REPS)]
     out = tmp_path / "cheetah"
@@ -359,19 +345,33 @@ def test_tasks_keeps_only_the_runs_of_those_tasks(sweep, tmp_path, capsys):
     pd.testing.assert_frame_equal(read(out, "runs.csv"), expected, check_dtype=False)
     assert set(read(out, "runs_meta.csv")["task"]) == {CHEETAH}
     assert set(read(out, "summary.csv")["task"]) == {CHEETAH}
+
+
+@pytest.mark.parametrize(
+    "option, kept, absent, present",
+    [
+        ("--settings", "bonus=vae,intrinsic.coef=0.1", "rnd", "cheetah_vae"),
+        ("--tasks", CHEETAH, "Ant-v5", CHEETAH),
+    ],
+)
+def test_a_selection_in_place_or_without_runs_is_refused(
+    sweep, tmp_path, capsys, option, kept, absent, present
+):
+    data = sweep["out"] / "runs.csv"
+    common = ["--oracle", str(sweep["oracle"]), "--reps", str(REPS)]
     # in place it would drop committed runs: refused, the file untouched
     before = data.read_bytes()
-    argv = ["--from-data", str(data), "--tasks", CHEETAH, "--out", str(sweep["out"])]
+    argv = ["--from-data", str(data), option, kept, "--out", str(sweep["out"])]
     with pytest.raises(SystemExit):
         main([*argv, *common])
-    assert "--tasks would drop runs" in capsys.readouterr().err
+    assert f"{option} would drop runs" in capsys.readouterr().err
     assert data.read_bytes() == before
-    # a task without runs is named, with those there are
-    argv = ["--from-data", str(data), "--tasks", "Ant-v5", "--out", str(tmp_path / "x")]
+    # a selection without runs is named, with those there are; nothing written
+    argv = ["--from-data", str(data), option, absent, "--out", str(tmp_path / "x")]
     with pytest.raises(SystemExit):
         main([*argv, *common])
     err = capsys.readouterr().err
-    assert "['Ant-v5']" in err and f"'{CHEETAH}'" in err
+    assert f"['{absent}']" in err and f"'{present}'" in err
     assert not (tmp_path / "x").exists()
 
 

@@ -1542,13 +1542,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                 data, meta = keep_runs(
                     data, meta, settings=args.settings, tasks=args.tasks
                 )
-            from_dir = args.from_data and args.from_data.resolve().parent
-            if selecting and from_dir == args.out.resolve():
-                option = "--settings" if args.settings is not None else "--tasks"
-                raise ValueError(
-                    f"{option} would drop runs from {args.from_data}: write "
-                    "the selection to another --out."
-                )
+                from_dir = args.from_data and args.from_data.resolve().parent
+                if from_dir == args.out.resolve():
+                    option = "--settings" if args.settings is not None else "--tasks"
+                    raise ValueError(
+                        f"{option} would drop runs from {args.from_data}: write "
+                        "the selection to another --out."
+                    )
             args.out.mkdir(parents=True, exist_ok=True)
             runs_csv = args.out / "runs.csv"
             data.to_csv(runs_csv, index=False, float_format="%.6g")
