@@ -9,9 +9,10 @@ STAMP := $(VENV)/.installed
 
 install: $(STAMP)
 
-$(STAMP): pyproject.toml
+# The exact tested set (constraints/tested.txt) within pyproject.toml's ranges.
+$(STAMP): pyproject.toml constraints/tested.txt
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet -e ".[dev]"
+	$(PY) -m pip install --quiet -c constraints/tested.txt -e ".[dev]"
 	touch $(STAMP)
 
 # The main job: A2C + VAE surprise on a MiniGrid task, a few minutes on 2 CPU cores.
@@ -41,5 +42,5 @@ figures: $(STAMP)
 # The speed targets, one table of side-by-side ratios (benchmarks/README.md);
 # installs the optional `bench` extra (the peer, torch-ac) first. ARGS=--quick: smoke run.
 bench: $(STAMP)
-	$(PY) -m pip install --quiet -e ".[dev,bench]"
+	$(PY) -m pip install --quiet -c constraints/tested.txt -e ".[dev,bench]"
 	$(PY) benchmarks/bench_speed.py $(ARGS)

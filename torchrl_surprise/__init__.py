@@ -1,7 +1,15 @@
-"""torchrl_surprise: VAE Bayesian-surprise exploration for TorchRL.
+"""torchrl_surprise: exploration bonuses for TorchRL.
 
-The intrinsic reward of a state is ``KL(q(z|s) || N(0, I))`` under a VAE trained on
-visited states; the agent trains on ``r_ext + beta * r_int``.
+A bonus is a TorchRL ``Transform`` (it writes the intrinsic reward and the mixed
+reward ``r_ext + coef * r_int``, inside an env or on a collected batch) paired with
+a ``LossModule`` that trains its model. The paper's bonus is the VAE surprise,
+``KL(q(z|s) || N(0, I))`` under a VAE trained on visited states; the one that
+explores best in our measurements is its episodic form,
+:class:`VAEEllipticalTransform`, with its intrinsic return learned by a second
+critic (:class:`TwoStreamAdvantage`).
+
+Env factories live in :mod:`torchrl_surprise.envs` (MiniGrid, MuJoCo: each needs
+its extra), the resumable collectors in :mod:`torchrl_surprise.collectors`.
 """
 
 from torchrl_surprise.modules import ICMModel, StateVAE
@@ -15,10 +23,11 @@ from torchrl_surprise.transforms import (
     ICMTransform,
     IntrinsicRewardTransform,
     LinearSchedule,
+    VAEEllipticalTransform,
     VAESurpriseTransform,
 )
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 __all__ = [
     "ICMLoss",
@@ -29,6 +38,7 @@ __all__ = [
     "LinearSchedule",
     "StateVAE",
     "TwoStreamAdvantage",
+    "VAEEllipticalTransform",
     "VAELoss",
     "VAESurpriseTransform",
 ]

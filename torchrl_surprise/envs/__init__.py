@@ -1,32 +1,71 @@
-"""Environment factories (MiniGrid with the paper's MultiRoom tasks, MuJoCo), the
-MiniGrid oracle, and gymnasium wrappers whose runtime state can be checkpointed.
+"""Environment factories, the MiniGrid oracle, and gymnasium wrappers whose runtime
+state can be checkpointed.
 
-Importing this package registers ``MiniGrid-MultiRoom-N3-S4-v0`` and
-``MiniGrid-MultiRoom-N4-S4-v0`` with gymnasium.
+Each env family is an extra, imported on first use of its names, so that
+``import torchrl_surprise.envs`` needs neither minigrid nor mujoco:
+
+* MiniGrid (``pip install "torchrl_surprise[minigrid]"``): :func:`make_minigrid_env`
+  (the paper's ``MiniGrid-MultiRoom-N3-S4-v0`` and ``-N4-S4-v0`` included; they are
+  registered with gymnasium when :mod:`torchrl_surprise.envs.minigrid` is imported),
+  the oracle :func:`solve_minigrid`;
+* MuJoCo (``pip install "torchrl_surprise[mujoco]"``): :func:`make_mujoco_env`.
+
+Examples:
+    >>> import sys
+    >>> import torchrl_surprise.envs as envs
+    >>> "torchrl_surprise.envs.mujoco" in sys.modules  # not imported until used
+    False
+    >>> envs.PAPER_MUJOCO_IDS
+    ('HalfCheetah-v5', 'Hopper-v5', 'Walker2d-v5')
 """
 
-from torchrl_surprise.envs.minigrid import (
-    MINIGRID_OBS_KEYS,
-    MULTIROOM_N3_S4,
-    MULTIROOM_N4_S4,
-    PAPER_MULTIROOM_IDS,
-    make_minigrid_env,
-    register_minigrid_envs,
-)
-from torchrl_surprise.envs.mujoco import PAPER_MUJOCO_IDS, make_mujoco_env
-from torchrl_surprise.envs.oracle import (
-    OracleSolution,
-    oracle_returns,
-    oracle_table,
-    solve_minigrid,
-)
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
 from torchrl_surprise.envs.vector import (
     RuntimeStateMixin,
     SingleGymEnv,
     VectorGymWrapper,
 )
 
-register_minigrid_envs()
+# name -> (module, the extra that installs what the module needs)
+_LAZY = {
+    "MINIGRID_OBS_KEYS": ("minigrid", "minigrid"),
+    "MULTIROOM_N3_S4": ("minigrid", "minigrid"),
+    "MULTIROOM_N4_S4": ("minigrid", "minigrid"),
+    "PAPER_MULTIROOM_IDS": ("minigrid", "minigrid"),
+    "make_minigrid_env": ("minigrid", "minigrid"),
+    "register_minigrid_envs": ("minigrid", "minigrid"),
+    "OracleSolution": ("oracle", "minigrid"),
+    "oracle_returns": ("oracle", "minigrid"),
+    "oracle_table": ("oracle", "minigrid"),
+    "solve_minigrid": ("oracle", "minigrid"),
+    "PAPER_MUJOCO_IDS": ("mujoco", "mujoco"),
+    "make_mujoco_env": ("mujoco", "mujoco"),
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    module, extra = _LAZY[name]
+    try:
+        value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    except ModuleNotFoundError as err:
+        raise ModuleNotFoundError(
+            f"torchrl_surprise.envs.{name} needs {err.name!r}, which is not "
+            f'installed: pip install "torchrl_surprise[{extra}]".',
+            name=err.name,
+        ) from err
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)
+
 
 __all__ = [
     "MINIGRID_OBS_KEYS",

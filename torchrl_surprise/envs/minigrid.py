@@ -237,3 +237,7 @@ def make_minigrid_env(
     if seed is not None:
         env.set_seed(seed)
     return env
+
+
+# The paper's ids are known to gymnasium as soon as this module is imported.
+register_minigrid_envs()
