@@ -41,3 +41,30 @@ def test_no_module_imports_private_names_of_another():
                     if alias.name.startswith("_")
                 ]
     assert offenders == []
+
+
+def test_env_families_are_imported_on_first_use_only():
+    code = (
+        "import sys, torchrl_surprise.envs as envs; "
+        "print(sorted(m for m in sys.modules if m.startswith('torchrl_surprise.envs.'))); "
+        "envs.make_minigrid_env; "
+        "print('torchrl_surprise.envs.minigrid' in sys.modules, "
+        "'torchrl_surprise.envs.mujoco' in sys.modules)"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    ).stdout.splitlines()
+    assert out == ["['torchrl_surprise.envs.vector']", "True False"]
+
+
+def test_a_missing_env_family_names_its_extra():
+    # minigrid made unimportable, as in an install without the extra.
+    code = (
+        "import sys; sys.modules['minigrid'] = None; "
+        "import torchrl_surprise.envs as envs; envs.make_minigrid_env"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True
+    )
+    assert result.returncode != 0
+    assert 'pip install "torchrl_surprise[minigrid]"' in result.stderr

@@ -11,11 +11,10 @@ Each env family is an extra, imported on first use of its names, so that
 * MuJoCo (``pip install "torchrl_surprise[mujoco]"``): :func:`make_mujoco_env`.
 
 Examples:
-    >>> import sys
-    >>> import torchrl_surprise.envs as envs
-    >>> "torchrl_surprise.envs.mujoco" in sys.modules  # not imported until used
-    False
-    >>> envs.PAPER_MUJOCO_IDS
+    >>> from torchrl_surprise.envs import PAPER_MUJOCO_IDS, make_minigrid_env
+    >>> make_minigrid_env.__module__  # imported on this first use
+    'torchrl_surprise.envs.minigrid'
+    >>> PAPER_MUJOCO_IDS
     ('HalfCheetah-v5', 'Hopper-v5', 'Walker2d-v5')
 """
 
