@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml constraints/tested.txt
 
 # The main job: A2C + VAE surprise on a MiniGrid task, a few minutes on 2 CPU cores.
 train: $(STAMP)
-	$(PY) recipes/a2c_minigrid/main.py $(ARGS)
+	$(PY) recipes/minigrid/main.py $(ARGS)
 
 # The suite on TEST_WORKERS processes (pytest-xdist; 2 for the project's 2-core
 # machine; TEST_WORKERS=0 runs it in one process); the 15 slowest tests are listed.
@@ -34,9 +34,9 @@ docs: $(STAMP)
 # (each experiment's runs.csv, each heatmap summary's rows per run and layout; no
 # run directory or checkpoint needed).
 figures: $(STAMP)
-	$(PY) -m torchrl_surprise.experiments.aggregate --all docs/results
+	$(PY) recipes/results/aggregate.py --all docs/results
 	for rows in docs/results/heatmaps/*_layouts.csv; do \
-		$(PY) -m torchrl_surprise.experiments.heatmap --from-layouts $$rows || exit 1; \
+		$(PY) recipes/results/heatmap.py --from-layouts $$rows || exit 1; \
 	done
 
 # The speed targets, one table of side-by-side ratios (benchmarks/README.md);

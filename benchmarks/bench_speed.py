@@ -70,6 +70,7 @@ import torch
 from torch import nn
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "recipes"))  # the recipes' shared `common` package
 A2C_MAIN = ROOT / "recipes" / "a2c_minigrid" / "main.py"
 DDPG_MAIN = ROOT / "recipes" / "ddpg_mujoco" / "main.py"
 GIB = 1024**3
@@ -136,7 +137,7 @@ def run_child(cmd: list[str]) -> Child:
 
 
 def last_scalar(run_dir: Path, logger: str, name: str) -> float:
-    from torchrl_surprise.experiments import read_scalar_csv
+    from common.run import read_scalar_csv
 
     _, values = read_scalar_csv(run_dir / "logs" / logger / "scalars" / f"{name}.csv")
     return float(values[-1])
@@ -273,7 +274,7 @@ def collector_worker(workers: int, frames_per_env: int, frames: int) -> None:
     """The A2C recipe's collector alone, frames/s after its first batch; prints JSON."""
     from hydra import compose, initialize_config_dir
 
-    from torchrl_surprise.experiments.minigrid import (
+    from common.minigrid import (
         make_actor_critic,
         make_collector,
         make_env,
@@ -309,7 +310,7 @@ def collector_frames_per_cpu_s(num_envs: int, frames: int) -> float:
     env and batch): frames per CPU second of this single-threaded process."""
     from hydra import compose, initialize_config_dir
 
-    from torchrl_surprise.experiments.minigrid import (
+    from common.minigrid import (
         make_actor_critic,
         make_collector,
         make_env,

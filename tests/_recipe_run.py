@@ -9,7 +9,7 @@ import subprocess
 import time
 from pathlib import Path
 
-from torchrl_surprise.experiments import load_checkpoint
+from common.run import load_checkpoint
 
 
 def load_recipe_utils(recipe_dir: Path):

@@ -7,6 +7,9 @@ models read hand-built batches of valid object/colour/state ids.
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import pytest
 import torch
 from tensordict import TensorDict
@@ -18,6 +21,10 @@ from torchrl_surprise.modules.vae import (
     MINIGRID_NUM_OBJECTS,
     MINIGRID_NUM_STATES,
 )
+
+# What the recipes share (common) and the results tools (results) live in recipes/,
+# outside the wheel; the recipes' scripts put it on sys.path the same way.
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "recipes"))
 
 #: Observation size of the vector mock envs (ContinuousActionVecMockEnv, ...).
 OBS_DIM = 7

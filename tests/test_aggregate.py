@@ -19,7 +19,7 @@ import pandas as pd
 import pytest
 import yaml
 
-from torchrl_surprise.experiments.aggregate import (
+from results.aggregate import (
     _figure,
     _save,
     extract_run_data,
@@ -448,7 +448,7 @@ def test_no_run_directory_is_a_clear_error(tmp_path, capsys):
 
 
 def test_a_threshold_counts_only_once_the_episode_window_is_full():
-    from torchrl_surprise.experiments.aggregate import frames_to_threshold
+    from results.aggregate import frames_to_threshold
 
     # The first episodes to end are the short successes (return 0.8 at 1000
     # frames), the time-outs end later and pull the mean down; the 100-episode
@@ -474,7 +474,7 @@ def test_a_threshold_counts_only_once_the_episode_window_is_full():
 
 
 def test_documented_results_show_a_recipe_its_own_learners_results(tmp_path):
-    from torchrl_surprise.experiments.minigrid import documented_results
+    from common.minigrid import documented_results
 
     task = "MiniGrid-MultiRoom-N3-S4-v0"
     row = "{},{},500000,5,0.9,0.8,1.0,1.0\n"
@@ -500,7 +500,7 @@ def test_documented_results_show_a_recipe_its_own_learners_results(tmp_path):
 
 
 def test_documented_results_show_each_setting_once_at_the_runs_noise_level(tmp_path):
-    from torchrl_surprise.experiments.minigrid import documented_results
+    from common.minigrid import documented_results
 
     task = "MiniGrid-MultiRoom-N3-S4-v0"
     header = (

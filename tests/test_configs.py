@@ -13,9 +13,12 @@ from omegaconf import OmegaConf
 
 RECIPES = Path(__file__).resolve().parents[1] / "recipes"
 EXPERIMENTS = [
-    (recipe, path.stem)
-    for recipe in ("a2c_minigrid", "ppo_minigrid", "ddpg_mujoco")
-    for path in sorted((RECIPES / recipe / "experiment").glob("*.yaml"))
+    (
+        recipe,
+        path.relative_to(RECIPES / recipe / "experiment").with_suffix("").as_posix(),
+    )
+    for recipe in ("minigrid", "ddpg_mujoco")
+    for path in sorted((RECIPES / recipe / "experiment").glob("**/*.yaml"))
 ]
 
 
@@ -45,7 +48,7 @@ def test_every_sweep_job_composes_and_passes_the_recipe_checks(recipe, experimen
             )
             OmegaConf.to_container(cfg, resolve=True)  # every interpolation resolves
             check_config(cfg)
-            assert cfg.experiment_name == experiment
+            assert cfg.experiment_name == experiment.split("/")[-1]
             if "+setting" in job:
                 assert cfg.setting == job["+setting"], "a setting file's label"
             variants = OmegaConf.select(cfg, "intrinsic.vae.variant") is not None
@@ -56,7 +59,7 @@ def test_every_sweep_job_composes_and_passes_the_recipe_checks(recipe, experimen
                 assert "variant:" in text, f"{path.name} must name its VAE variant"
 
 
-@pytest.mark.parametrize("recipe", ["a2c_minigrid", "ppo_minigrid"])
+@pytest.mark.parametrize("algo", ["a2c", "ppo"])
 @pytest.mark.parametrize(
     ("overrides", "message"),
     [
@@ -73,10 +76,10 @@ def test_every_sweep_job_composes_and_passes_the_recipe_checks(recipe, experimen
     ],
 )
 def test_a_bonus_model_update_schedule_that_cannot_run_is_refused(
-    recipe, overrides, message
+    algo, overrides, message
 ):
-    check_config = recipe_check(recipe)
-    with initialize_config_dir(config_dir=str(RECIPES / recipe), version_base=None):
-        cfg = compose("config", overrides=overrides)
+    check_config = recipe_check("minigrid")
+    with initialize_config_dir(config_dir=str(RECIPES / "minigrid"), version_base=None):
+        cfg = compose("config", overrides=[f"algo={algo}", *overrides])
     with pytest.raises(ValueError, match=message):
         check_config(cfg)

@@ -1,4 +1,4 @@
-"""The surprise heatmap (torchrl_surprise.experiments.heatmap) on one real layout.
+"""The surprise heatmap (recipes/results/heatmap.py) on one real layout.
 
 MiniGrid-MultiRoom-N3-S4-v0, layout seed 0, with a small VAE built in-process;
 the CLI reads a checkpoint the test writes in the recipe's format.
@@ -14,8 +14,7 @@ import pytest
 import torch
 from tensordict import TensorDict
 
-from torchrl_surprise import StateVAE, VAESurpriseTransform
-from torchrl_surprise.experiments.heatmap import (
+from results.heatmap import (
     CATEGORIES,
     bonus_grid,
     category_means,
@@ -29,6 +28,7 @@ from torchrl_surprise.experiments.heatmap import (
     render_layout,
     solution_memory,
 )
+from torchrl_surprise import StateVAE, VAESurpriseTransform
 from torchrl_surprise.transforms import (
     VAEEllipticalTransform,
     VAEPosteriorShiftTransform,

@@ -469,8 +469,8 @@ def test_vector_icm_loss_equals_reference(hidden, batch_shape):
     )
 
 
-@pytest.mark.parametrize("recipe", ["a2c_minigrid", "ppo_minigrid"])
-def test_the_recipes_losses_on_the_shared_trunk_equal_one_trunk_per_head(recipe):
+@pytest.mark.parametrize("algo", ["a2c", "ppo"])
+def test_the_recipes_losses_on_the_shared_trunk_equal_one_trunk_per_head(algo):
     """The recipes run the actor-critic's trunk once per update (``shared_trunk``)
     and give the losses its heads; the two-stream advantage takes one pass of a
     two-headed critic. Same advantages and the same gradients as the losses and
@@ -481,20 +481,26 @@ def test_the_recipes_losses_on_the_shared_trunk_equal_one_trunk_per_head(recipe)
     from hydra import compose, initialize_config_dir
     from torchrl.objectives import A2CLoss, ClipPPOLoss
 
+    from common.minigrid import (
+        make_actor_critic,
+        make_bonus,
+        make_collector,
+        make_env,
+        shared_trunk,
+    )
     from torchrl_surprise import IntrinsicValueLoss, TwoStreamAdvantage
-    from torchrl_surprise.experiments.minigrid import make_collector, shared_trunk
 
-    root = Path(__file__).resolve().parents[1] / "recipes" / recipe
+    root = Path(__file__).resolve().parents[1] / "recipes" / "minigrid"
     utils = load_recipe_utils(root)
     with initialize_config_dir(config_dir=str(root), version_base=None):
-        cfg = compose("config", overrides=["bonus=vae", "env.num_envs=4"])
+        overrides = [f"algo={algo}", "bonus=vae", "env.num_envs=4"]
+        cfg = compose("config", overrides=overrides)
     torch.manual_seed(0)
-    env = utils.make_env(cfg, 4, seed=0)
-    bonus, _, _ = utils.make_bonus(cfg, env.action_spec, "vae")
-    ppo = recipe == "ppo_minigrid"
-    model, int_value = utils.make_actor_critic(env.action_spec, True, ppo)
-    make = utils.make_ppo if ppo else utils.make_a2c
-    loss, advantage, int_loss = make(cfg, model, int_value, bonus)
+    env = make_env(cfg, 4, seed=0)
+    bonus, _, _ = make_bonus(cfg, env.action_spec, "vae")
+    ppo = algo == "ppo"
+    model, int_value = make_actor_critic(env.action_spec, True, ppo)
+    loss, advantage, int_loss = utils.make_loss(cfg, model, int_value, bonus)
     policy = model.get_policy_operator()
     collector = make_collector(env, policy, cfg, total_frames=10 * 4 * 8)
     data = next(iter(collector))

@@ -20,10 +20,12 @@ from _recipe_run import (
 )
 from tensordict import TensorDict
 
-from torchrl_surprise.experiments import load_checkpoint, read_scalar_csv
-from torchrl_surprise.experiments.heatmap import load_bonus_transform
+from common.run import load_checkpoint, read_scalar_csv
+from results.heatmap import load_bonus_transform
 
-MAIN = Path(__file__).resolve().parents[1] / "recipes" / "a2c_minigrid" / "main.py"
+RECIPES = Path(__file__).resolve().parents[1] / "recipes"
+MAIN = RECIPES / "minigrid" / "main.py"
+AGGREGATE = RECIPES / "results" / "aggregate.py"
 TINY = [
     "env.name=MiniGrid-MultiRoom-N3-S4-v0",
     "env.num_envs=4",
@@ -267,7 +269,7 @@ def test_sweep_runs_each_job_once_and_a_rerun_starts_no_new_work(
         sys.executable,
         str(MAIN),
         "-m",
-        "+experiment=tiny",
+        "+experiment=a2c/tiny",
         f"hydra/launcher={launcher}",
         f"hydra.sweep.dir={tmp_path}",
         "collector.total_frames=256",
@@ -289,7 +291,7 @@ def test_sweep_runs_each_job_once_and_a_rerun_starts_no_new_work(
         return
     # The aggregation command turns the sweep into a table with IQM and CIs.
     out = tmp_path / "results"
-    cmd = [sys.executable, "-m", "torchrl_surprise.experiments.aggregate"]
+    cmd = [sys.executable, str(AGGREGATE)]
     subprocess.run([*cmd, str(tmp_path), "--out", str(out), "--reps", "50"], check=True)
     summary = pd.read_csv(out / "summary.csv")
     assert sorted(summary["setting"]) == ["none", "vae"]
@@ -306,7 +308,7 @@ def test_sigterm_to_a_local_sweep_stops_every_job_and_starts_no_new_one(tmp_path
         sys.executable,
         str(MAIN),
         "-m",
-        "+experiment=tiny",
+        "+experiment=a2c/tiny",
         f"hydra.sweep.dir={sweep_dir}",
         "hydra.launcher.n_jobs=2",
         "collector.total_frames=1000000",

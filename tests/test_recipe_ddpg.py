@@ -21,7 +21,8 @@ from _recipe_run import (
 )
 from hydra import compose, initialize_config_dir
 
-from torchrl_surprise.experiments import aggregate, load_checkpoint, read_scalar_csv
+from common.run import load_checkpoint, read_scalar_csv
+from results import aggregate
 
 RECIPE = Path(__file__).resolve().parents[1] / "recipes" / "ddpg_mujoco"
 MAIN = RECIPE / "main.py"

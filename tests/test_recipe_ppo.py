@@ -12,12 +12,13 @@ import torch
 from _recipe_run import differing_logs, kill_after_checkpoint, load_recipe_utils
 from hydra import compose, initialize_config_dir
 
-from torchrl_surprise.experiments import load_checkpoint, read_scalar_csv
+from common.run import load_checkpoint, read_scalar_csv
 
-RECIPE = Path(__file__).resolve().parents[1] / "recipes" / "ppo_minigrid"
+RECIPE = Path(__file__).resolve().parents[1] / "recipes" / "minigrid"
 MAIN = RECIPE / "main.py"
 # 4 envs x 32 frames = 128 per update, 2 epochs of 2 minibatches of 64.
 TINY = [
+    "algo=ppo",
     "env.name=MiniGrid-MultiRoom-N3-S4-v0",
     "env.num_envs=4",
     "collector.frames_per_env=32",

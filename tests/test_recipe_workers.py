@@ -15,20 +15,17 @@ from _recipe_run import differing_logs, kill_after_checkpoint
 from hydra import compose, initialize_config_dir
 from omegaconf import open_dict
 
-from torchrl_surprise.experiments import (
-    ResumableCollector,
-    load_checkpoint,
-    read_scalar_csv,
-)
-from torchrl_surprise.experiments.minigrid import (
+from common.minigrid import (
     check_config,
     make_actor_critic,
     make_collector,
     make_env,
 )
+from common.run import load_checkpoint, read_scalar_csv
+from torchrl_surprise.collectors import ResumableCollector
 
 RECIPES = Path(__file__).resolve().parents[1] / "recipes"
-A2C = RECIPES / "a2c_minigrid"
+A2C = RECIPES / "minigrid"
 # 2 workers x 2 envs x 8 steps = 32 frames per update.
 TINY = [
     "env.name=MiniGrid-MultiRoom-N3-S4-v0",
@@ -108,8 +105,9 @@ def test_ppo_with_two_workers(tmp_path):
     run_dir = tmp_path / "ppo"
     overrides = ["collector.frames_per_env=32", "loss.minibatch_size=64"]
     run_recipe(
-        RECIPES / "ppo_minigrid",
+        RECIPES / "minigrid",
         run_dir,
+        "algo=ppo",
         *overrides,
         "loss.epochs=2",
         "bonus=vae",

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 from omegaconf import OmegaConf
 
-from torchrl_surprise.experiments import prepare_run, save_checkpoint
+from common.run import prepare_run, save_checkpoint
 
 
 def config(bonus: str, variant: str = "kl"):

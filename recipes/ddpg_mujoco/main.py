@@ -58,7 +58,7 @@ from utils import (
     replay_keys,
 )
 
-from torchrl_surprise.experiments import (
+from common.run import (
     Checkpointer,
     EpisodeStats,
     Progress,

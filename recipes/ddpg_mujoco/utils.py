@@ -20,9 +20,10 @@ from torchrl.modules import (
 )
 from torchrl.objectives import DDPGLoss, SoftUpdate
 
+from common.run import RESUME_MODES
 from torchrl_surprise import StateVAE, VAELoss, VAESurpriseTransform
+from torchrl_surprise.collectors import ResumableCollector
 from torchrl_surprise.envs import make_mujoco_env
-from torchrl_surprise.experiments import RESUME_MODES, ResumableCollector
 from torchrl_surprise.modules.vae import OneDNNLinear
 from torchrl_surprise.transforms import NORMALIZATIONS, make_coef_schedule
 
@@ -368,7 +369,7 @@ class ScalarMeans:
 def make_collector(env, policy, cfg):
     """The collector of the whole run, random actions for ``init_random_frames``.
 
-    A :class:`~torchrl_surprise.experiments.ResumableCollector`: its state holds the
+    A :class:`~torchrl_surprise.collectors.ResumableCollector`: its state holds the
     episodes in progress (MuJoCo simulator states included) and its frame count, so
     a resumed run continues them, and the random phase, where they were.
     """

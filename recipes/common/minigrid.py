@@ -1,0 +1,676 @@
+"""Builders shared by the MiniGrid recipes (A2C, PPO): config checks, envs, the
+rl-starter-files actor-critic, the bonus and its advantage, the collector, and the
+pieces of the training loop both recipes run alike (the bonus model's update, the
+rollout metrics, the evaluation).
+
+Run support, not library core: it imports minigrid (through the env factory) and is
+imported by the recipes only.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import os
+from pathlib import Path
+
+import torch
+from omegaconf import OmegaConf
+from tensordict.nn import TensorDictModule, TensorDictSequential
+from torch import nn
+from torch.distributions import Categorical
+from torchrl.envs import Compose, RewardSum, StepCounter, TransformedEnv
+from torchrl.envs.transforms import RNDTransform
+from torchrl.modules import ActorValueOperator, ProbabilisticActor, ValueOperator
+from torchrl.objectives.rnd import RNDLoss
+from torchrl.objectives.value import GAE
+
+from torchrl_surprise import (
+    ICMLoss,
+    ICMModel,
+    ICMTransform,
+    IntrinsicValueLoss,
+    StateVAE,
+    TwoStreamAdvantage,
+    VAELoss,
+    VAESurpriseTransform,
+)
+from torchrl_surprise.collectors import (
+    ResumableCollector,
+    ResumableMultiSyncCollector,
+)
+from torchrl_surprise.envs import make_minigrid_env
+from torchrl_surprise.transforms import (
+    NORMALIZATIONS,
+    PrecomputedBonusTransform,
+    VAEEllipticalTransform,
+    VAENegativeELBOTransform,
+    VAEPosteriorShiftTransform,
+    make_coef_schedule,
+)
+from torchrl_surprise.transforms.stochasticity import (
+    STOCHASTICITY_LEVELS,
+    StochasticityTransform,
+)
+
+from .run import RESUME_MODES, evaluate_episodes
+
+__all__ = [
+    "BONUSES",
+    "VAE_VARIANTS",
+    "vae_variant_kwargs",
+    "MiniGridConvTrunk",
+    "EVAL_SEED_OFFSET",
+    "bonus_update_steps",
+    "check_config",
+    "check_workers",
+    "documented_results",
+    "documented_results_message",
+    "evaluate",
+    "init_rl_starter",
+    "load_bonus_model",
+    "make_actor_critic",
+    "make_advantage",
+    "make_bonus",
+    "make_collector",
+    "make_env",
+    "rollout_metrics",
+    "shared_trunk",
+    "train_bonus_model",
+]
+
+BONUSES = ("none", "vae", "icm", "rnd")
+
+VAE_VARIANTS = {
+    # the paper's bonus: KL(q(z|s) || N(0, I))
+    "kl": VAESurpriseTransform,
+    # novelty: -ELBO, how badly the VAE explains the state
+    "neg_elbo": VAENegativeELBOTransform,
+    # KL(q(z|s) || q_ref(z|s)): with the reference taken right before the VAE
+    # trains on the rollout (info_gain) or every few updates (lagged_kl)
+    "info_gain": VAEPosteriorShiftTransform,
+    "lagged_kl": VAEPosteriorShiftTransform,
+    # episodic novelty: E3B's elliptical bonus on the VAE's posterior mean
+    "elliptical": VAEEllipticalTransform,
+}
+"""``intrinsic.vae.variant`` -> the transform that computes the VAE bonus."""
+RND_KEY = "rnd_reward"
+
+
+def vae_variant_kwargs(variant: str, vae_cfg) -> dict:
+    """The keyword arguments a VAE variant's transform takes beyond the common
+    ones, read from the ``intrinsic.vae`` section of a config (a mapping).
+
+    Examples:
+        >>> vae_variant_kwargs("elliptical", {"ridge": 0.5})
+        {'ridge': 0.5, 'global_bonus': 'none'}
+        >>> vae_variant_kwargs("kl", {"ridge": 0.5})
+        {}
+    """
+    if variant != "elliptical":
+        return {}
+    return {
+        "ridge": vae_cfg.get("ridge", 0.1),
+        "global_bonus": vae_cfg.get("global_bonus", "none"),
+    }
+
+
+def check_config(cfg) -> None:
+    """Fails early, naming the value, on a config the recipe cannot run."""
+    variant = cfg.intrinsic.vae.get("variant", "kl")
+    if variant not in VAE_VARIANTS:
+        raise ValueError(
+            f"intrinsic.vae.variant must be one of {tuple(VAE_VARIANTS)}, got "
+            f"{variant!r}."
+        )
+    if cfg.bonus not in BONUSES:
+        raise ValueError(f"bonus must be one of {BONUSES}, got {cfg.bonus!r}.")
+    if cfg.intrinsic.normalization not in NORMALIZATIONS:
+        raise ValueError(
+            f"intrinsic.normalization must be one of {NORMALIZATIONS}, got "
+            f"{cfg.intrinsic.normalization!r}."
+        )
+    if cfg.env.stochasticity not in STOCHASTICITY_LEVELS:
+        raise ValueError(
+            f"env.stochasticity must be one of {sorted(STOCHASTICITY_LEVELS)}, got "
+            f"{cfg.env.stochasticity!r}."
+        )
+    if str(cfg.resume).lower() not in RESUME_MODES:
+        raise ValueError(f"resume must be one of {RESUME_MODES}, got {cfg.resume!r}.")
+    positive = {
+        "env.num_envs": cfg.env.num_envs,
+        "collector.total_frames": cfg.collector.total_frames,
+        "collector.frames_per_env": cfg.collector.frames_per_env,
+        "optim.lr": cfg.optim.lr,
+        "intrinsic.lr": cfg.intrinsic.lr,
+        "eval.interval_frames": cfg.eval.interval_frames,
+        "eval.num_envs": cfg.eval.num_envs,
+        "checkpoint.interval_frames": cfg.checkpoint.interval_frames,
+        "logger.log_interval": cfg.logger.log_interval,
+    }
+    for name, value in positive.items():
+        if not (isinstance(value, (int, float)) and value > 0):
+            raise ValueError(f"{name} must be a positive number, got {value!r}.")
+    if not 0.0 <= cfg.loss.gamma <= 1.0 or not 0.0 <= cfg.loss.gae_lambda <= 1.0:
+        raise ValueError("loss.gamma and loss.gae_lambda must be in [0, 1].")
+    if cfg.intrinsic.update_steps < 0 or cfg.intrinsic.warmup_frames < 0:
+        raise ValueError("intrinsic.update_steps and warmup_frames must be >= 0.")
+    update_every = cfg.intrinsic.get("update_every", 1)
+    if not (isinstance(update_every, int) and update_every > 0):
+        raise ValueError(
+            f"intrinsic.update_every must be a positive integer, got {update_every!r}."
+        )
+    variant = cfg.intrinsic.vae.get("variant") if cfg.bonus == "vae" else None
+    if update_every > 1 and variant in ("info_gain", "lagged_kl"):
+        # info_gain: the change that training on a rollout makes to its states'
+        # posterior; lagged_kl: the copy is refreshed right after a training step,
+        # so with sparse steps it would mostly equal the VAE (a bonus of 0).
+        raise ValueError(
+            f"intrinsic.vae.variant={variant} compares the VAE with itself before "
+            "its last updates, so it trains on every rollout: set "
+            f"intrinsic.update_every=1 (got {update_every})."
+        )
+    if not math.isfinite(cfg.intrinsic.coef):
+        raise ValueError(f"intrinsic.coef must be finite, got {cfg.intrinsic.coef}.")
+    check_workers(cfg)
+
+
+def check_workers(cfg) -> None:
+    """``collector.workers`` (absent from older configs: 1): a positive integer
+    that divides ``env.num_envs``, and 1 with ``bonus=rnd``."""
+    workers = cfg.collector.get("workers", 1)
+    if not (isinstance(workers, int) and workers > 0):
+        raise ValueError(
+            f"collector.workers must be a positive integer, got {workers!r}."
+        )
+    if cfg.env.num_envs % workers:
+        raise ValueError(
+            f"env.num_envs ({cfg.env.num_envs}) must be a multiple of "
+            f"collector.workers ({workers}): each worker process steps "
+            "env.num_envs / collector.workers envs. Change one of them."
+        )
+    if workers > 1 and cfg.bonus == "rnd":
+        raise ValueError(
+            "bonus=rnd runs TorchRL's RNDTransform inside the env, so with "
+            f"collector.workers={workers} each worker process would compute the bonus "
+            "with its own stale copy of the RND predictor and its statistics. Run "
+            "bonus=rnd with collector.workers=1 (the other bonuses are computed on "
+            "the collected batch in the main process and work with any number of "
+            "workers)."
+        )
+
+
+def make_env(cfg, num_envs: int, seed: int, bonus: str = "none", rnd=None):
+    """MiniGrid as one batched TorchRL env, with noise, episode stats (and RND)."""
+    env = make_minigrid_env(cfg.env.name, num_envs=num_envs)
+    transforms = []
+    if cfg.env.stochasticity:
+        # Transforms are not seeded by env.set_seed in TorchRL 0.14: seed it here.
+        noise = StochasticityTransform.from_level(cfg.env.stochasticity, seed=seed + 1)
+        transforms.append(noise)
+    # RewardSum sees the env's reward: the extrinsic return is what is logged.
+    transforms += [RewardSum(), StepCounter()]
+    if bonus == "rnd":
+        transforms.append(rnd)
+    env = TransformedEnv(env, Compose(*transforms))
+    env.set_seed(seed)
+    return env
+
+
+class MiniGridConvTrunk(nn.Module):
+    """The image network of rl-starter-files' ACModel (ids fed as numbers)."""
+
+    def __init__(self):
+        super().__init__()
+        self.net = nn.Sequential(
+            nn.Conv2d(3, 16, (2, 2)),
+            nn.ReLU(),
+            nn.MaxPool2d((2, 2)),
+            nn.Conv2d(16, 32, (2, 2)),
+            nn.ReLU(),
+            nn.Conv2d(32, 64, (2, 2)),
+            nn.ReLU(),
+            nn.Flatten(),
+        )
+
+    def forward(self, image: torch.Tensor) -> torch.Tensor:
+        batch = image.shape[:-3]
+        x = image.reshape(-1, *image.shape[-3:]).float().movedim(-1, -3)
+        return self.net(x).reshape(*batch, -1)
+
+
+def _mlp_head(out_features: int) -> nn.Module:
+    return nn.Sequential(nn.Linear(64, 64), nn.Tanh(), nn.Linear(64, out_features))
+
+
+def init_rl_starter(module: nn.Module) -> None:
+    # rl-starter-files' init_params: unit-norm rows, zero bias, for Linear layers.
+    if isinstance(module, nn.Linear):
+        module.weight.data.normal_(0, 1)
+        module.weight.data *= 1 / module.weight.data.pow(2).sum(1, keepdim=True).sqrt()
+        module.bias.data.fill_(0)
+
+
+def make_actor_critic(
+    action_spec, intrinsic_critic: bool, return_log_prob: bool = False
+):
+    """Shared conv trunk, a categorical policy head and one (or two) value heads.
+
+    ``return_log_prob=True`` makes the policy write ``"action_log_prob"`` as it
+    acts (PPO's ratio needs the log-probability under the collecting policy).
+    """
+    num_actions = action_spec.space.n
+    trunk = TensorDictModule(
+        MiniGridConvTrunk(), in_keys=["image"], out_keys=["hidden"]
+    )
+    policy_head = ProbabilisticActor(
+        TensorDictModule(
+            _mlp_head(num_actions), in_keys=["hidden"], out_keys=["logits"]
+        ),
+        in_keys=["logits"],
+        distribution_class=Categorical,
+        spec=action_spec,
+        return_log_prob=return_log_prob,
+    )
+    value_head = ValueOperator(_mlp_head(1), in_keys=["hidden"])
+    model = ActorValueOperator(trunk, policy_head, value_head)
+    model.apply(init_rl_starter)
+    intrinsic_value = None
+    if intrinsic_critic:
+        int_head = ValueOperator(
+            _mlp_head(1), in_keys=["hidden"], out_keys=["state_value_int"]
+        )
+        int_head.apply(init_rl_starter)
+        intrinsic_value = TensorDictSequential(trunk, int_head)
+    return model, intrinsic_value
+
+
+def make_bonus(cfg, action_spec, bonus: str):
+    """The bonus: (batch transform, loss on the bonus model, env-side transform)."""
+    icfg = cfg.intrinsic
+    schedule = make_coef_schedule(
+        icfg.coef, icfg.coef_end, icfg.anneal_frames, icfg.warmup_frames
+    )
+    common = dict(
+        coef=icfg.coef,
+        coef_schedule=schedule,
+        normalization=icfg.normalization,
+        gamma=cfg.loss.gamma,
+        clip=icfg.clip,
+        # With a separate intrinsic critic the reward stays extrinsic.
+        reward_key=None if icfg.intrinsic_critic else "reward",
+    )
+    env_side = None
+    if bonus == "vae":
+        vae = StateVAE.for_minigrid(
+            latent_dim=icfg.vae.latent_dim,
+            hidden_dim=icfg.vae.hidden_dim,
+            use_direction=icfg.vae.use_direction,
+        )
+        variant = icfg.vae.get("variant", "kl")
+        common.update(vae_variant_kwargs(variant, icfg.vae))
+        transform = VAE_VARIANTS[variant](vae, **common)
+        loss = VAELoss(vae, kl_weight=icfg.vae.kl_weight)
+    elif bonus == "icm":
+        icm = ICMModel.for_minigrid(
+            num_actions=action_spec.space.n, hidden_dim=icfg.icm.hidden_dim
+        )
+        transform = ICMTransform(icm, **common)
+        loss = ICMLoss(icm, beta=icfg.icm.beta)
+    elif bonus == "rnd":
+
+        def net():
+            return nn.Sequential(
+                nn.Flatten(-3),
+                nn.Linear(7 * 7 * 3, icfg.rnd.hidden_dim),
+                nn.ReLU(),
+                nn.Linear(icfg.rnd.hidden_dim, icfg.rnd.hidden_dim),
+                nn.ReLU(),
+                nn.Linear(icfg.rnd.hidden_dim, icfg.rnd.hidden_dim),
+            )
+
+        target, predictor = net(), net()
+        # TorchRL's RNDTransform runs in the env (it has no batch path); its raw
+        # error is then normalised and mixed by the same base as the other bonuses.
+        env_side = RNDTransform(
+            target,
+            predictor,
+            in_keys=["image"],
+            out_keys=[RND_KEY],
+            normalize_reward=False,
+        )
+        transform = PrecomputedBonusTransform(RND_KEY, **common)
+        loss = RNDLoss(predictor, target, update_fraction=icfg.rnd.update_fraction)
+        loss.set_keys(observation=("next", "image"))
+    else:
+        return None, None, None
+    return transform, loss, env_side
+
+
+def make_advantage(cfg, model, intrinsic_value, bonus_transform):
+    """The advantage: GAE on the (mixed) reward, or two streams with two critics.
+
+    Returns ``(advantage module, IntrinsicValueLoss or None)``.
+    """
+    if intrinsic_value is None:
+        # One critic, on the env reward or on the transform's mixed reward.
+        advantage = GAE(
+            gamma=cfg.loss.gamma,
+            lmbda=cfg.loss.gae_lambda,
+            value_network=model.get_value_operator(),
+            average_gae=False,
+        )
+        return advantage, None
+    # One critic with both value heads on the shared trunk: one pass of the trunk
+    # over the batch's states and next states gives all four values.
+    int_head = intrinsic_value.module[-1]
+    both = TensorDictSequential(shared_trunk(model), model.get_value_head(), int_head)
+    advantage = TwoStreamAdvantage(
+        both,
+        None,
+        intrinsic_reward_key=bonus_transform.normalized_reward_key
+        or bonus_transform.intrinsic_reward_key,
+        # The transform's coefficient and schedule: coef means one thing.
+        coef=bonus_transform.current_coef,
+        gamma=cfg.loss.gamma,
+        lmbda=cfg.loss.gae_lambda,
+        episodic=cfg.intrinsic.episodic,
+    )
+    # The head only: it reads the trunk's features that the training loop computes
+    # once, with gradients, for every loss (shared_trunk).
+    value_loss = IntrinsicValueLoss(int_head, critic_coef=cfg.loss.critic_coef)
+    return advantage, value_loss
+
+
+def shared_trunk(model) -> TensorDictModule:
+    """The actor-critic's trunk, to run once per update before the losses.
+
+    The recipes' losses (TorchRL's ``A2CLoss`` / ``ClipPPOLoss`` and
+    :class:`~torchrl_surprise.IntrinsicValueLoss`) are given the policy and value
+    heads only, which read the trunk's ``"hidden"`` features from the batch: the
+    training loop runs ``data = trunk(data)`` with gradients first, so the trunk
+    runs once per update instead of once per head, and its gradient is the sum of
+    the heads' as before. (The batch's ``"hidden"`` from the rollout was computed
+    without gradients; the trunk call replaces it.)
+
+    Examples:
+        >>> from torchrl.data import Categorical
+        >>> model, _ = make_actor_critic(Categorical(7), intrinsic_critic=False)
+        >>> trunk = shared_trunk(model)
+        >>> trunk.in_keys, trunk.out_keys
+        (['image'], ['hidden'])
+        >>> model.get_value_head().in_keys
+        ['hidden']
+    """
+    return model.module[0]
+
+
+def make_collector(env, policy, cfg, total_frames: int):
+    """The collector of ``env.num_envs * collector.frames_per_env`` frames a batch.
+
+    With ``collector.workers`` 1 (the default, and what a config without the entry
+    gets): a :class:`~torchrl_surprise.collectors.ResumableCollector` stepping
+    ``env`` in this process. With more, a
+    :class:`~torchrl_surprise.collectors.ResumableMultiSyncCollector`: worker
+    ``w`` builds ``env.num_envs / workers`` envs seeded from
+    ``seed + w * env.num_envs / workers`` (the sub-envs get the seeds they get with
+    one process), ``env`` only gave the specs and is closed. Either way the state
+    holds the episodes in progress, so a resumed run continues exactly.
+    """
+    workers = cfg.collector.get("workers", 1)
+    frames_per_batch = cfg.env.num_envs * cfg.collector.frames_per_env
+    if workers == 1:
+        # ResumableCollector: a TorchRL Collector whose state_dict also holds the
+        # episodes in progress, so a resumed run continues exactly.
+        return ResumableCollector(
+            env,
+            policy,
+            frames_per_batch=frames_per_batch,
+            total_frames=total_frames,
+            auto_register_policy_transforms=False,
+        )
+    env.close()
+    per_worker = cfg.env.num_envs // workers
+    # The workers are spawned processes: the factories travel pickled, with the
+    # env settings only (no Hydra interpolation to resolve there).
+    env_cfg = OmegaConf.create({"env": OmegaConf.to_container(cfg.env, resolve=True)})
+    factories = [
+        functools.partial(make_env, env_cfg, per_worker, seed=cfg.seed + w * per_worker)
+        for w in range(workers)
+    ]
+    return ResumableMultiSyncCollector(
+        factories,
+        policy,
+        frames_per_batch=per_worker * cfg.collector.frames_per_env,
+        total_frames=total_frames,
+        seed=cfg.seed,
+        auto_register_policy_transforms=False,
+    )
+
+
+EVAL_SEED_OFFSET = 10_000
+"""The evaluation envs are seeded ``seed + EVAL_SEED_OFFSET``: other episodes."""
+
+
+def bonus_update_steps(cfg, iteration: int) -> int:
+    """The bonus model's gradient steps after rollout ``iteration`` (from 0).
+
+    ``intrinsic.update_steps`` on every ``intrinsic.update_every``-th rollout
+    (absent from older configs: 1, every rollout), the first included; none on the
+    others and none at all for a transferred model kept frozen
+    (``intrinsic.finetune: false``). The count depends on the rollout's index only,
+    so a resumed run trains on the same rollouts as the uninterrupted one.
+
+    Examples:
+        >>> from omegaconf import OmegaConf
+        >>> cfg = OmegaConf.create({"intrinsic": {"update_steps": 2,
+        ...     "update_every": 4, "finetune": True}})
+        >>> [bonus_update_steps(cfg, i) for i in range(6)]
+        [2, 0, 0, 0, 2, 0]
+    """
+    icfg = cfg.intrinsic
+    if not icfg.finetune or iteration % icfg.get("update_every", 1):
+        return 0
+    return icfg.update_steps
+
+
+def train_bonus_model(bonus_loss, optim, data, steps: int, env_side=None):
+    """``steps`` gradient steps of the bonus model on the states of ``data``.
+
+    Each step minimises the sum of the ``loss_*`` entries of ``bonus_loss(data)``.
+    With RND (``env_side``, TorchRL's ``RNDTransform``), ``RNDLoss`` normalises
+    the states with the env-side transform's running statistics.
+
+    Returns:
+        The loss TensorDict of the last step (``None`` without a bonus model or
+        when ``steps`` is 0).
+    """
+    if bonus_loss is None:
+        return None
+    if env_side is not None:
+        bonus_loss.obs_rms = env_side.obs_rms
+    bonus_td = None
+    for _ in range(steps):
+        bonus_td = bonus_loss(data)
+        bonus_total = sum(v for k, v in bonus_td.items() if k.startswith("loss_"))
+        optim.zero_grad()
+        bonus_total.backward()
+        optim.step()
+    return bonus_td
+
+
+def rollout_metrics(stats, data, bonus_transform=None, bonus_td=None) -> dict:
+    """What both recipes log about a collected batch, by metric name.
+
+    The episode statistics (extrinsic return, success rate, length, episode count),
+    the mean reward of the batch, and with a bonus its raw and normalised mean, the
+    current coefficient and the bonus model's losses (``bonus/*``).
+    """
+    metrics = {
+        "train/episode_return": stats.mean_return,
+        "train/success_rate": stats.success_rate,
+        "train/episode_length": stats.mean_length,
+        "train/episodes": stats.episodes,
+        "train/reward": data["next", "reward"].mean().item(),
+    }
+    if bonus_transform is not None:
+        next_td = data["next"]
+        metrics["train/intrinsic_reward"] = (
+            next_td[bonus_transform.intrinsic_reward_key].mean().item()
+        )
+        if bonus_transform.normalized_reward_key is not None:
+            metrics["train/intrinsic_reward_normalized"] = (
+                next_td[bonus_transform.normalized_reward_key].mean().item()
+            )
+        metrics["train/intrinsic_coef"] = bonus_transform.current_coef()
+    if bonus_td is not None:
+        for key, value in bonus_td.items():
+            metrics[f"bonus/{key}"] = value.mean().item()
+    return metrics
+
+
+def evaluate(
+    env, policy, episodes: int, *, seed: int, deterministic: bool
+) -> tuple[float, float]:
+    """Mean extrinsic return and success rate over ``episodes`` finished episodes.
+
+    ``env`` is reseeded with ``seed`` first, so every evaluation sees the same
+    episodes (:func:`~common.run.evaluate_episodes`).
+    """
+    returns = evaluate_episodes(
+        env, policy, episodes, seed=seed, deterministic=deterministic
+    )
+    mean = sum(returns) / max(len(returns), 1)
+    return mean, sum(r > 0 for r in returns) / max(len(returns), 1)
+
+
+# The attribute of each bonus transform that holds its model.
+_BONUS_MODELS = {"vae": "vae", "icm": "icm"}
+
+
+def load_bonus_model(transform, bonus: str, source: str | os.PathLike) -> int:
+    """Starts a bonus model from another run's (transfer), without its statistics.
+
+    Args:
+        transform: the bonus transform of this run.
+        bonus (str): ``"vae"`` or ``"icm"``.
+        source: a run directory or its ``checkpoint.pt``.
+
+    Returns:
+        The number of frames the source run had trained for.
+    """
+    from .run import load_checkpoint
+
+    path = Path(source)
+    path = path / "checkpoint.pt" if path.is_dir() else path
+    if bonus not in _BONUS_MODELS:
+        raise ValueError(
+            f"intrinsic.init_from supports bonus vae or icm, not {bonus!r}."
+        )
+    if not path.exists():
+        raise FileNotFoundError(f"intrinsic.init_from: no checkpoint at {path}.")
+    ckpt = load_checkpoint(path)
+    source_bonus = ckpt.get("config", {}).get("bonus")
+    if source_bonus != bonus:
+        raise ValueError(
+            f"intrinsic.init_from: {path} was trained with bonus={source_bonus!r}, "
+            f"this run has bonus={bonus!r}."
+        )
+    prefix = _BONUS_MODELS[bonus] + "."
+    weights = {
+        k[len(prefix) :]: v
+        for k, v in ckpt["bonus_transform"].items()
+        if k.startswith(prefix)
+    }
+    model = getattr(transform, _BONUS_MODELS[bonus])
+    try:
+        model.load_state_dict(weights)
+    except RuntimeError as err:
+        raise ValueError(
+            f"intrinsic.init_from: the model in {path} does not fit this run's "
+            f"(sizes in intrinsic.{bonus}.* must match the source run's): {err}"
+        ) from err
+    return int(ckpt.get("frames", 0))
+
+
+def documented_results_message(
+    task: str,
+    frames: int,
+    results_dir: str | os.PathLike,
+    recipe: str,
+    stochasticity: int = 0,
+) -> str:
+    """The lines of :func:`documented_results` under a header, for a recipe's final
+    message; ``""`` when nothing was measured at that budget.
+
+    Examples:
+        >>> documented_results_message("MiniGrid-DoorKey-5x5-v0", 123, ".", "a2c_minigrid")
+        ''
+    """
+    measured = documented_results(
+        task, frames, results_dir, recipe=recipe, stochasticity=stochasticity
+    )
+    if not measured:
+        return ""
+    return (
+        f"Measured on {task} at {frames} frames (docs/results, the oracle's "
+        f"return = 1; each label is recipes/{recipe}/setting/<label>.yaml, "
+        "vae = the paper's KL):\n" + "\n".join(measured)
+    )
+
+
+def documented_results(
+    task: str,
+    frames: int,
+    results_dir: str | os.PathLike = "docs/results",
+    recipe: str | None = None,
+    stochasticity: int = 0,
+) -> list[str]:
+    """What the committed sweep results say about ``task`` at ``frames``, one line
+    per setting (from each experiment's ``summary.csv`` whose budget is
+    ``frames``), so a run's final message can show what other learners reach.
+
+    With ``recipe`` (``"a2c_minigrid"``, say), only experiments whose runs all came
+    from ``runs/<recipe>/`` (their ``runs_meta.csv``) count, so that a recipe shows
+    its own learner's results and not another learner's on the same task. Only the
+    settings run at the noise level ``stochasticity`` count, and a setting shown by
+    one experiment (the first by name) is not repeated by another.
+
+    Returns an empty list when nothing was measured at that budget.
+
+    Examples:
+        >>> documented_results("MiniGrid-MultiRoom-N3-S4-v0", 123, results_dir=".")
+        []
+    """
+    import csv
+
+    from results.aggregate import split_level
+
+    lines, shown = [], set()
+    for path in sorted(Path(results_dir).glob("*/summary.csv")):
+        if recipe is not None:
+            meta = path.parent / "runs_meta.csv"
+            if not meta.exists():
+                continue
+            with open(meta) as f:
+                run_dirs = [Path(row["run_dir"]).parts for row in csv.DictReader(f)]
+            if not run_dirs or any(p[:2] != ("runs", recipe) for p in run_dirs):
+                continue
+        with open(path) as f:
+            for row in csv.DictReader(f):
+                if row.get("task") != task or not row.get("budget"):
+                    continue
+                if abs(float(row["budget"]) - frames) > 0.01 * frames:
+                    continue
+                level = split_level(row["setting"])[1]
+                if level != stochasticity or row["setting"] in shown:
+                    continue
+                shown.add(row["setting"])
+                lines.append(
+                    f"  {row['setting']:<24} return / oracle {float(row['train_return_iqm']):.2f} "
+                    f"[{float(row['train_return_ci_low']):.2f}, "
+                    f"{float(row['train_return_ci_high']):.2f}] (IQM, 95% CI), success "
+                    f"{float(row['train_success_iqm']):.2f}, {row['seeds']} seeds "
+                    f"({path.parent.name})"
+                )
+    return lines

@@ -1,0 +1,308 @@
+"""A2C or PPO with an exploration bonus on MiniGrid, in TorchRL.
+
+``algo=a2c`` is the paper's Algorithm 1; ``algo=ppo`` the same bonus under PPO.
+Every update, in this order:
+
+1. the collector gathers ``frames_per_env`` steps from each of ``num_envs`` envs
+   (A2C: 16 x 8 = 128 transitions, the set D of Algorithm 1; PPO: 16 x 128 =
+   2,048), in this process or split over ``collector.workers`` processes;
+2. the bonus of every transition is computed in one batched pass with the bonus
+   model as it was during the rollout, and mixed, ``r = r_ext + coef *
+   normalize(r_int)``, or kept for the intrinsic critic (the env's reward is kept
+   as ``extrinsic_reward`` and is what is logged);
+3. the advantages, once for the whole batch (as torch-ac and CleanRL do): GAE on
+   the (mixed) reward, or with ``intrinsic.intrinsic_critic=true`` the two streams
+   ``A_ext + coef * A_int`` (:class:`torchrl_surprise.TwoStreamAdvantage`), with the
+   critics as they were during the rollout;
+4. the learner's update: A2C takes one RMSprop step of TorchRL's ``A2CLoss`` on the
+   whole batch; PPO takes ``loss.epochs`` passes over it in shuffled minibatches of
+   ``loss.minibatch_size``, one Adam step of ``ClipPPOLoss`` per minibatch (plus
+   :class:`IntrinsicValueLoss` with two critics, in both);
+5. the bonus model (VAE, ICM or RND predictor) takes ``update_steps`` gradient
+   steps on the states of the batch, which is then discarded (no replay), on every
+   ``intrinsic.update_every``-th batch; with ``intrinsic.vae.variant=info_gain``
+   this comes before step 2 (the bonus is the posterior shift of this update).
+
+Run: ``python recipes/minigrid/main.py algo=ppo bonus=vae env.name=MiniGrid-DoorKey-8x8-v0``
+Sweep: ``python recipes/minigrid/main.py -m +experiment=a2c/n3s4`` (rerun it to resume).
+Resume a killed run: ``... hydra.run.dir=<its run dir>`` (``resume=auto``, the
+default, continues from the checkpoint; the resumed run logs exactly what the
+uninterrupted run would have). Ctrl-C or SIGTERM saves a checkpoint and exits.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+# recipes/ holds what the recipes share (common) and the results tools (results).
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import cloudpickle
+import hydra
+import torch
+import utils  # the learners beside this script
+from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
+from omegaconf import OmegaConf
+from tqdm import tqdm
+
+import common
+from common.minigrid import (
+    EVAL_SEED_OFFSET,
+    bonus_update_steps,
+    documented_results_message,
+    evaluate,
+    load_bonus_model,
+    make_actor_critic,
+    make_bonus,
+    make_collector,
+    make_env,
+    rollout_metrics,
+    shared_trunk,
+    train_bonus_model,
+)
+from common.run import (
+    Checkpointer,
+    EpisodeStats,
+    Progress,
+    RNGState,
+    StopSignal,
+    get_run_logger,
+    plot_scalar_logs,
+    prepare_run,
+)
+
+# Sweep launchers pickle this script's task function for their worker processes,
+# where the modules beside the script are not importable (submitit, Ray): they
+# travel by value instead.
+cloudpickle.register_pickle_by_value(utils)
+cloudpickle.register_pickle_by_value(common)
+
+
+@hydra.main(config_path=".", config_name="config", version_base=None)
+def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
+    utils.check_config(cfg)
+    algo = cfg.algo.name
+    run_dir = Path(HydraConfig.get().runtime.output_dir)
+    ckpt_path, ckpt = prepare_run(cfg, run_dir)
+
+    # ---- envs, models, losses -------------------------------------------------
+    env = make_env(cfg, cfg.env.num_envs, seed=cfg.seed)
+    bonus_transform, bonus_loss, env_side = make_bonus(cfg, env.action_spec, cfg.bonus)
+    if env_side is not None:
+        env.append_transform(env_side)
+    if cfg.intrinsic.init_from and not ckpt:
+        # Transfer: the bonus model starts from another run's (a resumed run
+        # restores its own from the checkpoint below).
+        source_frames = load_bonus_model(
+            bonus_transform, cfg.bonus, cfg.intrinsic.init_from
+        )
+        print(f"Bonus model from {cfg.intrinsic.init_from} ({source_frames} frames).")
+    eval_seed = cfg.seed + EVAL_SEED_OFFSET
+    eval_env = make_env(cfg, cfg.eval.num_envs, seed=eval_seed)
+    use_int_critic = cfg.intrinsic.intrinsic_critic and bonus_transform is not None
+    # PPO's policy records the log-probability of each action it takes: its ratio.
+    model, int_value = make_actor_critic(
+        env.action_spec, use_int_critic, return_log_prob=algo == "ppo"
+    )
+    policy = model.get_policy_operator()
+    trunk = shared_trunk(model)
+    loss_module, advantage, int_value_loss = utils.make_loss(
+        cfg, model, int_value, bonus_transform
+    )
+    params = list(model.parameters())
+    if int_value is not None:
+        shared = {id(p) for p in params}
+        params += [p for p in int_value.parameters() if id(p) not in shared]
+    optim = utils.make_optimizer(cfg, params)
+    bonus_optim = None
+    if bonus_loss is not None:
+        bonus_params = [p for p in bonus_loss.parameters() if p.requires_grad]
+        # fused: the same Adam update in one kernel (faster VAE steps on CPU)
+        bonus_optim = torch.optim.Adam(bonus_params, lr=cfg.intrinsic.lr, fused=True)
+    buffer = utils.make_minibatch_buffer(cfg)
+
+    stats = EpisodeStats(window=cfg.logger.episode_window)
+    progress = Progress(
+        frames=0,
+        next_eval=cfg.eval.interval_frames,
+        next_ckpt=cfg.checkpoint.interval_frames,
+    )
+    # The collector holds the episodes in progress; it runs to total_frames from
+    # its own saved frame count, so it is built for the whole run. With
+    # collector.workers > 1, worker processes step the envs synchronously, each
+    # rollout with the policy's weights after the last update (synced before each
+    # batch); the bonus and the updates stay in this process.
+    collector = make_collector(
+        env, policy, cfg, total_frames=cfg.collector.total_frames
+    )
+    # What a checkpoint holds, saved and loaded from this one mapping (RNG last:
+    # building the run above drew random numbers).
+    checkpointer = Checkpointer(
+        ckpt_path,
+        {
+            "progress": progress,
+            "model": model,
+            "int_value": int_value,
+            "optim": optim,
+            "bonus_transform": bonus_transform,
+            "bonus_optim": bonus_optim,
+            "collector": collector,
+            "stats": stats,
+            # PPO: the minibatch order of the next update's first epoch, drawn already
+            "minibatch_sampler": None if buffer is None else buffer.sampler,
+            "rng": RNGState(),
+        },
+        config=OmegaConf.to_container(cfg, resolve=True),
+        keep_dir=run_dir / "checkpoints" if cfg.checkpoint.keep else None,
+    )
+    if ckpt:
+        checkpointer.load(ckpt)
+    frames = progress.frames
+    logger = get_run_logger(cfg.logger.backend, run_dir, algo, cfg.logger.project_name)
+    if frames >= cfg.collector.total_frames:
+        print(f"Nothing to do: {frames} frames already done in {run_dir}.")
+        collector.shutdown()
+        return
+    variant = cfg.intrinsic.vae.variant if cfg.bonus == "vae" else None
+    logged_losses = utils.LOGGED_LOSSES[algo]
+
+    stop = StopSignal()
+
+    # ---- training loop ----------------------------------------------------------
+    pbar = tqdm(
+        total=cfg.collector.total_frames,
+        initial=frames,
+        unit="f",
+        desc=f"{algo} {cfg.bonus}",
+        # In a sweep, parallel bars garble each other: the logs hold the progress.
+        disable=HydraConfig.get().mode == RunMode.MULTIRUN,
+    )
+    start, start_frames = time.perf_counter(), frames
+    for data in collector:
+        frames += data.numel()
+        iteration = frames // data.numel() - 1
+        stats.update(data)
+        # intrinsic.update_steps on every intrinsic.update_every-th batch, else 0
+        # (always 0 for a frozen transferred model, finetune=false).
+        bonus_steps = bonus_update_steps(cfg, iteration)
+
+        if variant == "info_gain":
+            # The bonus is the posterior shift of this batch's VAE update: the VAE
+            # trains first (step 5 comes before step 2).
+            bonus_transform.snapshot()
+            bonus_td = train_bonus_model(
+                bonus_loss, bonus_optim, data, bonus_steps, env_side
+            )
+        # Step 2: the bonus of the whole rollout, with the bonus model as it was
+        # during it.
+        with torch.no_grad():
+            if bonus_transform is not None:
+                data = bonus_transform(data)
+            # Step 3: advantages and value targets, once: GAE on the (mixed)
+            # reward, or the two streams (TwoStreamAdvantage).
+            data = advantage(data)
+            if algo == "a2c" and cfg.loss.normalize_advantage:
+                data = utils.standardize_advantage(
+                    data, loss_module.tensor_keys.advantage
+                )
+
+        # Step 4: the learner's update, on the whole batch (A2C) or on epochs of
+        # shuffled minibatches (PPO).
+        minibatch_logs = []
+        for batch in utils.minibatches(data, buffer, cfg.loss.epochs):
+            # The shared trunk once, with gradients: the losses' heads read its
+            # features.
+            batch = trunk(batch)
+            loss_td = loss_module(batch)
+            loss = (
+                loss_td["loss_objective"]
+                + loss_td["loss_critic"]
+                + loss_td["loss_entropy"]
+            )
+            logs = loss_td.select(*logged_losses).detach()
+            if int_value_loss is not None:
+                loss_int = int_value_loss(batch)["loss_critic_int"]
+                loss = loss + loss_int
+                logs["loss_critic_int"] = loss_int.detach()
+            optim.zero_grad()
+            loss.backward()
+            logs["grad_norm"] = torch.nn.utils.clip_grad_norm_(
+                params, cfg.optim.max_grad_norm
+            )
+            optim.step()
+            minibatch_logs.append(logs)
+        logs = torch.stack(minibatch_logs).apply(lambda x: x.mean(), batch_size=[])
+
+        # Step 5: train the bonus model on the states of this rollout.
+        if variant != "info_gain":
+            bonus_td = train_bonus_model(
+                bonus_loss, bonus_optim, data, bonus_steps, env_side
+            )
+        if variant == "lagged_kl" and iteration % cfg.intrinsic.vae.lag_updates == 0:
+            bonus_transform.snapshot()
+
+        pbar.update(data.numel())
+        fps = (frames - start_frames) / (time.perf_counter() - start)
+        if iteration % cfg.logger.log_interval == 0:
+            metrics = rollout_metrics(stats, data, bonus_transform, bonus_td)
+            metrics.update({f"train/{k}": v.item() for k, v in logs.items()})
+            metrics["time/fps"] = fps
+            if logger is not None:
+                for name, value in metrics.items():
+                    logger.log_scalar(name, value, step=frames)
+            pbar.set_postfix(fps=f"{fps:.0f}", ret=f"{stats.mean_return:.3f}")
+
+        progress.frames = frames
+        if frames >= progress.next_eval:
+            progress.next_eval += cfg.eval.interval_frames
+            model.eval()
+            ret, success = evaluate(
+                eval_env,
+                policy,
+                cfg.eval.episodes,
+                seed=eval_seed,
+                deterministic=cfg.eval.deterministic,
+            )
+            model.train()
+            if logger is not None:
+                logger.log_scalar("eval/episode_return", ret, step=frames)
+                logger.log_scalar("eval/success_rate", success, step=frames)
+        checkpointer.save_every(cfg.checkpoint.interval_frames)
+        stop.save_and_exit(
+            checkpointer, frames, run_dir, pbar.close, collector.shutdown
+        )
+    stop.restore()
+    pbar.close()
+    checkpointer.save()
+    collector.shutdown()
+
+    curve = plot_scalar_logs(
+        run_dir / "logs",
+        "train/episode_return",
+        run_dir / "learning_curve.png",
+        label=cfg.bonus,
+        title=f"{cfg.env.name}: {algo.upper()} + {cfg.bonus} (seed {cfg.seed})",
+        ylabel=f"extrinsic return ({cfg.logger.episode_window}-episode mean)",
+    )
+    print(
+        f"Done: {frames} frames, {stats.episodes} episodes, last "
+        f"{cfg.logger.episode_window}-episode mean return {stats.mean_return:.3f}, "
+        f"success rate {stats.success_rate:.2f}, {fps:.0f} frames/s.\n"
+        f"Learning curve: {curve}\nLogs: {run_dir / 'logs'}\nRun directory: {run_dir}"
+    )
+    measured = documented_results_message(
+        cfg.env.name,
+        cfg.collector.total_frames,
+        Path(__file__).resolve().parents[2] / "docs" / "results",
+        f"{algo}_minigrid",
+        stochasticity=cfg.env.stochasticity,
+    )
+    if measured:
+        print(measured)
+
+
+if __name__ == "__main__":
+    main()
