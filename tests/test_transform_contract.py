@@ -134,7 +134,13 @@ def test_single_trans_env_check(kind, normalization):
     env = make_env(kind, normalization=normalization)
     check_env_specs(env)
     reward_spec = env.full_reward_spec
-    expected = {"reward", "extrinsic_reward", "intrinsic_reward"}
+    writer = type(env.transform).__name__
+    expected = {
+        "reward",
+        "extrinsic_reward",
+        "intrinsic_reward",
+        ("reward_contributions", writer, "intrinsic_reward"),
+    }
     if normalization != "none":
         expected.add("intrinsic_reward_normalized")
     assert set(reward_spec.keys(True, True)) == expected

@@ -178,7 +178,10 @@ def test_stacked_bonuses_keep_every_bonus_and_the_task_reward():
     out = env.transform(rollout.clone())
     torch.testing.assert_close(out["next", "extrinsic_reward"], task_reward)
     torch.testing.assert_close(out["next", "intrinsic_reward"], b1)
-    torch.testing.assert_close(out["next", "reward_before_icm"], task_reward + 0.5 * b1)
+    # The reward the ICM bonus received is kept as it was first received.
+    torch.testing.assert_close(
+        out["next", "reward_before_icm"], nxt["reward_before_icm"]
+    )
     torch.testing.assert_close(out["next", "reward"], expected)
 
     # The same, called one after the other, or in a replay buffer.
@@ -200,10 +203,51 @@ def test_stacked_bonuses_keep_every_bonus_and_the_task_reward():
     again = env.transform(out)
     torch.testing.assert_close(again["next", "reward"], expected)
     torch.testing.assert_close(icm_t(again)["next", "reward"], expected)
-    torch.testing.assert_close(
-        vae_t(out.clone())["next", "reward_before_icm"], task_reward + 0.5 * b1
-    )
+    torch.testing.assert_close(vae_t(out.clone())["next", "reward"], expected)
     torch.testing.assert_close(icm_t(out.clone())["next", "reward"], expected)
+
+
+@pytest.mark.parametrize(
+    "order", [("vae",), ("icm",), ("vae", "icm"), ("icm", "vae"), ("vae", "vae")]
+)
+@pytest.mark.parametrize("composed", [False, True], ids=["alone", "compose"])
+def test_recomputing_one_stacked_bonus_keeps_the_others(
+    order, composed, make_vector_batch
+):
+    # A batch that holds both bonuses (VAE, then ICM on its mixed reward);
+    # recompute some of them, in any order, after both models changed.
+    vae_t = make_vae_transform(coef=0.5, normalization="zscore")
+    icm_t = make_icm_transform(coef=0.25, **icm_keys())
+    batch = make_vector_batch((6,))
+    task_reward = batch["next", "reward"].clone()
+    mixed = icm_t(vae_t(batch.clone()))
+    perturb(vae_t.vae)
+    perturb(icm_t.icm)
+    vae_t.freeze()
+    icm_t.freeze()
+    transforms = {"vae": vae_t, "icm": icm_t}
+    out = mixed.clone()
+    for name in order:
+        transform = transforms[name]
+        out = (Compose(transform.clone()) if composed else transform)(out)
+
+    nxt, before = out["next"], mixed["next"]
+    b1 = nxt["intrinsic_reward_normalized"]
+    b2 = before["icm_reward"] if "icm" not in order else icm_bonus(icm_t, out)
+    if "vae" in order:
+        std = vae_t.reward_rms.var.sqrt()
+        expected = (vae_bonus(vae_t, out) - vae_t.reward_rms.mean) / std
+        torch.testing.assert_close(b1, expected)
+        assert not torch.allclose(b1, before["intrinsic_reward_normalized"])
+    if "icm" in order:
+        assert not torch.allclose(nxt["icm_reward"], before["icm_reward"])
+    torch.testing.assert_close(nxt["extrinsic_reward"], task_reward)
+    torch.testing.assert_close(nxt["reward"], task_reward + 0.5 * b1 + 0.25 * b2)
+    contributions = nxt["reward_contributions"]
+    torch.testing.assert_close(
+        contributions["VAESurpriseTransform", "intrinsic_reward"], 0.5 * b1
+    )
+    torch.testing.assert_close(contributions["ICMTransform", "icm_reward"], 0.25 * b2)
 
 
 # =================================================== 2. state_dict settings

@@ -11,10 +11,8 @@ sample through ``forward``). A bonus is a subclass that implements
 from __future__ import annotations
 
 import copy
-import itertools
 import math
 import warnings
-import weakref
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 
@@ -26,6 +24,7 @@ from torchrl.envs.transforms import Compose, Transform
 from torchrl.envs.transforms.rnd import RunningMeanStd
 
 __all__ = [
+    "CONTRIBUTIONS_KEY",
     "IntrinsicRewardTransform",
     "LinearSchedule",
     "NORMALIZATIONS",
@@ -35,6 +34,11 @@ __all__ = [
 
 #: Accepted values of ``normalization``.
 NORMALIZATIONS = ("none", "reward_std", "return_std", "zscore")
+
+#: The ``"next"`` entry under which each bonus keeps what it added to the reward,
+#: ``coef * normalised bonus``, as ``(CONTRIBUTIONS_KEY, <transform class>,
+#: *intrinsic_reward_key)``.
+CONTRIBUTIONS_KEY = "reward_contributions"
 
 
 @dataclass(frozen=True)
@@ -129,44 +133,6 @@ class WorkerCopyWarning(UserWarning):
     """
 
 
-@dataclass(frozen=True)
-class _Contribution:
-    """A bonus mixed into a reward by a transform's batch path."""
-
-    # The transform's token; its clones share it, as they compute the same bonus.
-    token: int
-    name: str
-    keys: frozenset  # the keys it wrote besides the reward
-
-
-# Distinguishes transforms (not ``id``, which a new transform may reuse).
-_TOKENS = itertools.count()
-
-# The mixed rewards that batch paths have written and that are still alive, by
-# identity: ``id(reward) -> (weakref to it, the bonuses mixed in it)``. A bonus
-# transform handed one of them knows which bonuses it holds, so stacked
-# transforms (a Compose, or called one after the other) mix into the reward just
-# remixed before them instead of into their stale copy of it, and a transform
-# finding its own bonus there starts again from its extrinsic reward.
-_MIXED_REWARDS: dict[int, tuple[weakref.ref, tuple[_Contribution, ...]]] = {}
-
-
-def _remember_mix(reward: torch.Tensor, mixed: tuple[_Contribution, ...]) -> None:
-    key = id(reward)
-
-    def forget(_, key=key):
-        _MIXED_REWARDS.pop(key, None)
-
-    _MIXED_REWARDS[key] = (weakref.ref(reward, forget), mixed)
-
-
-def _mixed_in(reward: torch.Tensor) -> tuple[_Contribution, ...] | None:
-    entry = _MIXED_REWARDS.get(id(reward))
-    if entry is None or entry[0]() is not reward:
-        return None
-    return entry[1]
-
-
 def _bonus_transforms(compose: Compose) -> Iterator[IntrinsicRewardTransform]:
     for transform in compose.transforms:
         if isinstance(transform, Compose):
@@ -183,13 +149,22 @@ class IntrinsicRewardTransform(Transform):
     * ``intrinsic_reward_key``: the raw bonus (never normalised, for logging);
     * ``intrinsic_reward_key + "_normalized"`` (only when ``normalization`` is
       not ``"none"``): the normalised bonus that is mixed in;
-    * ``extrinsic_reward_key``: a copy of the task reward, so it is never lost;
-    * ``reward_key``: ``r_ext + coef * r_int`` (the key losses and value
-      estimators read; ``None`` writes the bonus only and mixes nothing).
+    * ``extrinsic_reward_key``: the reward it received, so the task reward is
+      never lost;
+    * :attr:`contribution_key`, ``("reward_contributions", <class name>,
+      *intrinsic_reward_key)``: what it added to the reward, ``coef *
+      normalised bonus``;
+    * ``reward_key``: the received reward plus that contribution,
+      ``r_ext + coef * r_int`` for a single bonus (the key losses and value
+      estimators read; ``reward_key=None`` writes the bonus only and mixes
+      nothing).
 
-    The batch path (``forward``) always starts from ``extrinsic_reward_key`` when
-    it is present: recomputing the bonus of a replay-buffer sample with the
-    current model replaces the old bonus instead of stacking a new one on it.
+    Recomputing (``forward`` on a batch that already holds this transform's
+    contribution, e.g. a replay-buffer sample with the current model) replaces
+    the contribution: ``reward - old contribution + new contribution``. The
+    other bonuses mixed into the reward stay in it, whichever order they are
+    recomputed in; the kept ``extrinsic_reward_key`` is the reward as first
+    received and is not rewritten.
 
     Normalisation (``normalization``):
 
@@ -214,10 +189,11 @@ class IntrinsicRewardTransform(Transform):
     Stacking bonuses: each transform needs its own ``intrinsic_reward_key`` and
     ``extrinsic_reward_key``. The second then adds its bonus to the reward it
     receives and keeps that reward under its ``extrinsic_reward_key``, while the
-    first one's stays the task reward; on a batch, the second mixes into the
-    reward the first has just recomputed. Transforms that would write the same
-    keys are refused: in one ``Compose``, on an env whose reward spec already
-    has them, and on a batch whose reward another transform has just mixed.
+    first one's stays the task reward; the reward is the task reward plus every
+    contribution under ``"reward_contributions"``. Transforms that would write
+    the same keys are refused: in one ``Compose``, on an env whose reward spec
+    already has them, and on a batch where another bonus wrote them (its
+    contribution names it).
 
     Inside the env of a ``SerialEnv``/``ParallelEnv`` worker the transform emits
     a :class:`WorkerCopyWarning`: its statistics, and in a ``ParallelEnv`` its
@@ -259,10 +235,25 @@ class IntrinsicRewardTransform(Transform):
         ...     VAESurpriseTransform(vae, coef=0.5),
         ...     ICMTransform(icm, coef=0.1, intrinsic_reward_key="icm_reward",
         ...                  extrinsic_reward_key="reward_before_icm")))
-        >>> nxt = env.rollout(3)["next"]
+        >>> rollout = env.rollout(3)
+        >>> nxt = rollout["next"]
         >>> task, vae_bonus, icm_bonus = (
         ...     nxt["extrinsic_reward"], nxt["intrinsic_reward"], nxt["icm_reward"])
         >>> torch.allclose(nxt["reward"], task + 0.5 * vae_bonus + 0.1 * icm_bonus)
+        True
+
+        Each keeps its contribution; recomputing one bonus (here after a VAE
+        update) replaces its own and keeps the other's:
+
+        >>> sorted(nxt["reward_contributions"].keys(True, True))
+        [('ICMTransform', 'icm_reward'), ('VAESurpriseTransform', 'intrinsic_reward')]
+        >>> with torch.no_grad():
+        ...     _ = vae.head.bias.add_(0.3)
+        >>> nxt = env.transform[0](rollout.clone())["next"]
+        >>> bool((nxt["intrinsic_reward"] != vae_bonus).all())
+        True
+        >>> torch.allclose(nxt["reward"], task + 0.5 * nxt["intrinsic_reward"]
+        ...                + 0.1 * icm_bonus)
         True
 
         With the same keys, the second would overwrite the first's bonus:
@@ -323,7 +314,6 @@ class IntrinsicRewardTransform(Transform):
         self.time_dim = time_dim
         self.count_frames = count_frames
         self._frozen = False
-        self._bonus_token = next(_TOKENS)
         self.reward_rms = RunningMeanStd(shape=())
         self.register_buffer("frames", torch.zeros((), dtype=torch.long))
         self.register_buffer("_return_acc", torch.zeros(0))
@@ -339,20 +329,28 @@ class IntrinsicRewardTransform(Transform):
             return key + "_normalized"
         return (*key[:-1], key[-1] + "_normalized")
 
+    @property
+    def contribution_key(self) -> NestedKey | None:
+        """Where this bonus keeps ``coef * normalised bonus``, ``None`` if it mixes none.
+
+        ``(CONTRIBUTIONS_KEY, <transform class>, *intrinsic_reward_key)``: the
+        class names the writer, so that a bonus finds its own earlier
+        contribution on a batch and tells another bonus's apart.
+        """
+        if self.reward_key is None:
+            return None
+        key = self.intrinsic_reward_key
+        key = key if isinstance(key, tuple) else (key,)
+        return (CONTRIBUTIONS_KEY, type(self).__name__, *key)
+
     def _written_reward_keys(self) -> list[NestedKey]:
         keys = [self.intrinsic_reward_key]
         if self.normalized_reward_key is not None:
             keys.append(self.normalized_reward_key)
         if self.reward_key is not None:
             keys.append(self.extrinsic_reward_key)
+            keys.append(self.contribution_key)
         return keys
-
-    def _contribution(self) -> _Contribution:
-        return _Contribution(
-            token=self._bonus_token,
-            name=type(self).__name__,
-            keys=frozenset(self._written_reward_keys()),
-        )
 
     def _clash_error(self, clashing: Sequence[NestedKey], writer: str) -> ValueError:
         """The error for keys this transform would write over ``writer``'s."""
@@ -510,15 +508,52 @@ class IntrinsicRewardTransform(Transform):
             observations.append(value)
         return observations
 
+    def _per_transition(
+        self,
+        key: NestedKey,
+        value: torch.Tensor,
+        batch_size: torch.Size,
+        where: str = "the 'next' tensordict",
+    ) -> torch.Tensor:
+        """Checks that ``value`` holds one entry per transition and returns it.
+
+        Accepts ``[*batch]`` and ``[*batch, 1]`` (TorchRL's reward and done
+        shape); anything else is refused with the key and both shapes.
+        """
+        if value.shape not in (batch_size, (*batch_size, 1)):
+            raise ValueError(
+                f"{type(self).__name__}: expected {key!r} in {where} to hold one "
+                f"value per transition, shape {tuple(batch_size)} or "
+                f"{(*batch_size, 1)}; got {tuple(value.shape)}."
+            )
+        return value
+
     def _compute_bonus(
         self, tensordict: TensorDictBase, next_tensordict: TensorDictBase
     ) -> torch.Tensor:
         """The raw bonus of each transition, shape ``next_tensordict.batch_size``.
 
         ``tensordict`` holds ``s_t`` (and the action), ``next_tensordict``
-        ``s_{t+1}``. Called under ``torch.no_grad()``.
+        ``s_{t+1}``. Called under ``torch.no_grad()`` by the env path (one step
+        of every env) and, unless :meth:`_compute_batch_bonus` is overridden, by
+        the batch path.
         """
         raise NotImplementedError
+
+    def _compute_batch_bonus(
+        self,
+        tensordict: TensorDictBase,
+        next_tensordict: TensorDictBase,
+        time_dim: int | None,
+    ) -> torch.Tensor:
+        """The raw bonus of a batch of transitions (the batch path).
+
+        ``time_dim`` is the batch's time dimension (non-negative), or ``None``
+        when it has none. A bonus that does not depend on the order of
+        transitions computes it as one step; an episodic bonus walks
+        ``time_dim``.
+        """
+        return self._compute_bonus(tensordict, next_tensordict)
 
     # --------------------------------------------------------- normalising
     def _discounted_returns(self, bonus: torch.Tensor, time_dim: int | None):
@@ -530,6 +565,8 @@ class IntrinsicRewardTransform(Transform):
                 self._return_acc = returns
             return returns
         moved = bonus.movedim(time_dim, 0)
+        if not len(moved):
+            return bonus
         acc = self._return_acc
         if acc.shape != moved.shape[1:]:
             acc = torch.zeros_like(moved[0])
@@ -548,7 +585,7 @@ class IntrinsicRewardTransform(Transform):
             stats_input = self._discounted_returns(bonus, time_dim)
         else:
             stats_input = bonus
-        if self._updating:
+        if self._updating and stats_input.numel():
             self.reward_rms.update(stats_input)
         std = self.reward_rms.var.clamp_min(1e-8).sqrt()
         if self.normalization == "zscore":
@@ -561,59 +598,95 @@ class IntrinsicRewardTransform(Transform):
 
     # --------------------------------------------------------------- paths
     def _received_reward(
-        self, next_tensordict: TensorDictBase, batch: bool
-    ) -> tuple[torch.Tensor, tuple[_Contribution, ...]]:
-        """The reward to mix the bonus into, and the bonuses already mixed in it."""
-        received = next_tensordict.get(self.reward_key, None)
-        mixed = _mixed_in(received) if batch and received is not None else None
-        if mixed is not None and all(c.token != self._bonus_token for c in mixed):
-            # Other bonus transforms have just mixed this reward (this one's bonus
-            # is not in it): it is what this transform receives.
-            for contribution in mixed:
-                clashing = [
-                    k for k in self._written_reward_keys() if k in contribution.keys
-                ]
-                if clashing:
-                    raise self._clash_error(
-                        clashing,
-                        f"{contribution.name}, applied to this batch just before,",
-                    )
-            return received, mixed
-        # Otherwise the reward may hold this transform's own (stale) bonus: start
-        # from the reward it kept when it first saw the transition.
-        reward = next_tensordict.get(self.extrinsic_reward_key, None)
-        if reward is None:
-            reward = received
+        self, next_tensordict: TensorDictBase
+    ) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+        """The reward to mix the bonus into, and this bonus's contribution in it.
+
+        Returns ``(reward, previous)``: ``previous`` is what this transform added
+        to ``reward`` when it last mixed these transitions (its
+        :attr:`contribution_key`), ``None`` the first time. Refuses a batch where
+        another bonus wrote this transform's keys.
+        """
+        if self.reward_key is None:
+            return None, None
+        batch_size = next_tensordict.batch_size
+        reward = next_tensordict.get(self.reward_key, None)
+        previous = next_tensordict.get(self.contribution_key, None)
+        if previous is not None and reward is not None:
+            self._per_transition(self.reward_key, reward, batch_size)
+            self._per_transition(self.contribution_key, previous, batch_size)
+            return reward, previous.reshape(reward.shape)
+        kept = next_tensordict.get(self.extrinsic_reward_key, None)
+        self._refuse_other_writers(next_tensordict, kept is not None)
+        if kept is not None:
+            # Mixed without a recorded contribution (by hand, or by a version of
+            # the library that did not record them): start from the kept reward.
+            return self._per_transition(
+                self.extrinsic_reward_key, kept, batch_size
+            ), None
         if reward is None:
             raise KeyError(
                 f"{type(self).__name__}: expected the reward key "
                 f"{self.reward_key!r} (or {self.extrinsic_reward_key!r}) in "
                 "the 'next' tensordict."
             )
-        return reward, ()
+        return self._per_transition(self.reward_key, reward, batch_size), None
 
-    def _write_bonus(
+    def _refuse_other_writers(
+        self, next_tensordict: TensorDictBase, has_kept_reward: bool
+    ) -> None:
+        """Raises if another bonus already wrote this transform's keys on the batch.
+
+        The contributions under :data:`CONTRIBUTIONS_KEY` name their writers:
+        another class with this ``intrinsic_reward_key`` wrote the bonus keys;
+        any other bonus, where this ``extrinsic_reward_key`` is already filled
+        and this transform has no contribution, wrote the kept reward.
+        """
+        group = next_tensordict.get(CONTRIBUTIONS_KEY, None)
+        if not isinstance(group, TensorDictBase):
+            return
+        own = self.contribution_key[1:]
+        writers = []
+        for writer, *bonus_key in group.keys(True, True):
+            if (writer, *bonus_key) == own:
+                continue
+            writers.append(writer)
+            if tuple(bonus_key) == own[1:]:
+                clashing = [self.intrinsic_reward_key]
+                if has_kept_reward:
+                    clashing.append(self.extrinsic_reward_key)
+                raise self._clash_error(
+                    clashing, f"{writer}, applied to this batch before,"
+                )
+        if writers and has_kept_reward:
+            raise self._clash_error(
+                [self.extrinsic_reward_key],
+                f"{', '.join(writers)}, applied to this batch before,",
+            )
+
+    def _mix(
         self,
-        tensordict: TensorDictBase,
         next_tensordict: TensorDictBase,
+        bonus: torch.Tensor,
+        reward: torch.Tensor | None,
+        previous: torch.Tensor | None,
         time_dim: int | None,
-        batch: bool,
     ) -> TensorDictBase:
-        with torch.no_grad():
-            bonus = self._compute_bonus(tensordict, next_tensordict)
+        """Writes the bonus, its normalised and weighted forms, and the mixed reward."""
+        if bonus.shape != next_tensordict.batch_size:
+            raise ValueError(
+                f"{type(self).__name__}: the bonus model returned shape "
+                f"{tuple(bonus.shape)}, expected one bonus per transition, "
+                f"{tuple(next_tensordict.batch_size)}."
+            )
         if not torch.isfinite(bonus).all():
             raise ValueError(
                 f"{type(self).__name__}: the bonus model produced NaN or inf; its "
                 "parameters may have diverged."
             )
-        reward, mixed = None, ()
-        if self.reward_key is not None:
-            reward, mixed = self._received_reward(next_tensordict, batch)
         shape = reward.shape if reward is not None else (*bonus.shape, 1)
         dtype = reward.dtype if reward is not None else torch.float32
         bonus = bonus.reshape(shape).to(dtype)
-        if time_dim is not None and time_dim < 0:
-            time_dim = next_tensordict.ndim + time_dim
         normalized = self._normalize(bonus, time_dim)
         coef = self.current_coef()
         if self._updating and self.count_frames:
@@ -622,30 +695,47 @@ class IntrinsicRewardTransform(Transform):
         if self.normalized_reward_key is not None:
             next_tensordict.set(self.normalized_reward_key, normalized)
         if reward is not None:
-            next_tensordict.set(self.extrinsic_reward_key, reward)
-            mixed_reward = reward + coef * normalized
-            next_tensordict.set(self.reward_key, mixed_reward)
-            if batch:
-                _remember_mix(mixed_reward, (*mixed, self._contribution()))
+            weighted = coef * normalized
+            if previous is None:
+                next_tensordict.set(self.extrinsic_reward_key, reward)
+                mixed = reward + weighted
+            else:
+                # Only this bonus changes: the others' contributions stay in.
+                mixed = reward - previous + weighted
+            next_tensordict.set(self.contribution_key, weighted)
+            next_tensordict.set(self.reward_key, mixed)
         return next_tensordict
 
     def _step(
         self, tensordict: TensorDictBase, next_tensordict: TensorDictBase
     ) -> TensorDictBase:
-        return self._write_bonus(tensordict, next_tensordict, None, batch=False)
+        """The env path: the bonus of one step of every env."""
+        reward, previous = self._received_reward(next_tensordict)
+        with torch.no_grad():
+            bonus = self._compute_bonus(tensordict, next_tensordict)
+        return self._mix(next_tensordict, bonus, reward, previous, None)
 
     def _time_dim(self, tensordict: TensorDictBase) -> int | None:
-        if self.time_dim is not None:
-            return self.time_dim
-        names = tensordict.names if tensordict._has_names() else None
-        if names is not None and "time" in names:
-            return names.index("time")
-        if self.normalization == "return_std":
+        """The batch's time dimension (non-negative), or ``None`` without one."""
+        time_dim = self.time_dim
+        if time_dim is None:
+            names = tensordict.names if tensordict._has_names() else None
+            if names is not None and "time" in names:
+                time_dim = names.index("time")
+        if time_dim is None:
+            if self.normalization == "return_std":
+                raise ValueError(
+                    f"{type(self).__name__}: normalization='return_std' on a batch "
+                    "needs a time dimension: name it 'time' (collectors do) or pass "
+                    "time_dim."
+                )
+            return None
+        if not -tensordict.ndim <= time_dim < tensordict.ndim:
             raise ValueError(
-                f"{type(self).__name__}: normalization='return_std' on a batch needs "
-                "a time dimension: name it 'time' (collectors do) or pass time_dim."
+                f"{type(self).__name__}: time_dim={time_dim} is not a dimension of "
+                f"a batch of shape {tuple(tensordict.batch_size)}."
             )
-        return None
+        return time_dim % tensordict.ndim
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         """Recomputes the bonus of a batch of transitions with the current model.
@@ -660,9 +750,10 @@ class IntrinsicRewardTransform(Transform):
                 "entry holding the next observation and the reward."
             )
         time_dim = self._time_dim(tensordict)
-        next_tensordict = self._write_bonus(
-            tensordict, next_tensordict, time_dim, batch=True
-        )
+        reward, previous = self._received_reward(next_tensordict)
+        with torch.no_grad():
+            bonus = self._compute_batch_bonus(tensordict, next_tensordict, time_dim)
+        next_tensordict = self._mix(next_tensordict, bonus, reward, previous, time_dim)
         tensordict.set("next", next_tensordict)
         return tensordict
 
@@ -700,8 +791,17 @@ class IntrinsicRewardTransform(Transform):
         else:
             shape = (*shape, 1)
         for key in self._written_reward_keys():
-            if key != self.extrinsic_reward_key:
-                reward_spec[key] = Unbounded(shape=shape, device=device, dtype=dtype)
+            if key == self.extrinsic_reward_key:
+                continue
+            if isinstance(key, tuple):
+                # Intermediate entries (the contributions group) take the
+                # parent's batch shape, as every entry of a reward spec.
+                for depth in range(1, len(key)):
+                    if key[:depth] not in reward_spec.keys(True):
+                        reward_spec[key[:depth]] = Composite(
+                            shape=reward_spec.shape, device=device
+                        )
+            reward_spec[key] = Unbounded(shape=shape, device=device, dtype=dtype)
         return reward_spec
 
     def _check_batched_worker_compat(self) -> None:
