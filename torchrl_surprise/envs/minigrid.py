@@ -46,6 +46,7 @@ from torchrl.envs import EnvBase, Transform
 from torchrl_surprise.envs.vector import VectorGymWrapper
 
 __all__ = [
+    "MINIGRID_BACKENDS",
     "MINIGRID_OBS_KEYS",
     "MULTIROOM_N3_S4",
     "MULTIROOM_N4_S4",
@@ -166,6 +167,10 @@ class _OneHotAction(Transform):
         return action_spec
 
 
+MINIGRID_BACKENDS: tuple[str, ...] = ("gymnasium", "envpool")
+"""The backends of :func:`make_minigrid_env`."""
+
+
 def make_minigrid_env(
     env_name: str,
     num_envs: int = 16,
@@ -173,8 +178,18 @@ def make_minigrid_env(
     device: Any = "cpu",
     categorical_action_encoding: bool = True,
     env_kwargs: dict[str, Any] | None = None,
+    backend: str = "gymnasium",
+    num_threads: int = 1,
 ) -> EnvBase:
     """Builds ``num_envs`` MiniGrid envs as one batched TorchRL env.
+
+    With ``backend="envpool"`` the envs are envpool's C++ MiniGrid
+    (:class:`~torchrl_surprise.envs.envpool.EnvPoolMiniGridEnv`, ``pip install
+    "torchrl_surprise[envpool]"``): the same entries, specs and batch semantics,
+    several times the steps per CPU second (``benchmarks/bench_envpool.py``), but
+    envpool's own layouts (the same seed gives the same layouts within a backend,
+    not across them) and exact resume through a replay log rather than pickled
+    envs. What is below describes the gymnasium backend, the default.
 
     The envs run in-process in a gymnasium ``SyncVectorEnv`` whose own auto-reset is
     disabled, wrapped once by TorchRL's ``GymWrapper``: TorchRL resets finished
@@ -202,14 +217,18 @@ def make_minigrid_env(
         device: device of the output tensors.
         categorical_action_encoding: integer actions if ``True``, else one-hot.
         env_kwargs: extra keyword arguments for ``gymnasium.make`` (e.g.
-            ``{"max_steps": 100}``).
+            ``{"max_steps": 100}``), or for ``envpool.make`` with the envpool
+            backend (e.g. ``{"max_episode_steps": 100}``).
+        backend: ``"gymnasium"`` (minigrid's Python envs) or ``"envpool"``.
+        num_threads: envpool's worker threads (envpool backend only).
 
     Returns:
         A TorchRL env with batch size ``[num_envs]``.
 
     Raises:
         ValueError: if ``env_name`` is not a registered MiniGrid id (the message
-            lists close matches) or ``num_envs < 1``.
+            lists close matches), ``num_envs < 1`` or ``backend`` is unknown.
+        ModuleNotFoundError: ``backend="envpool"`` without envpool installed.
 
     Examples:
         >>> from torchrl_surprise.envs import make_minigrid_env
@@ -222,9 +241,33 @@ def make_minigrid_env(
         >>> bool(td["next", "truncated"].any())  # 60-step episodes were auto-reset
         True
         >>> env.close()
+        >>> env = make_minigrid_env("MiniGrid-MultiRoom-N3-S4-v0", num_envs=4,
+        ...                         seed=0, backend="envpool")
+        >>> env.rollout(100, break_when_any_done=False)["image"].shape
+        torch.Size([4, 100, 7, 7, 3])
+        >>> env.close()
     """
+    if backend not in MINIGRID_BACKENDS:
+        raise ValueError(
+            f"backend must be one of {MINIGRID_BACKENDS}, got {backend!r}."
+        )
     if not isinstance(num_envs, int) or num_envs < 1:
         raise ValueError(f"num_envs must be a positive int, got {num_envs!r}.")
+    if backend == "envpool":
+        # Imported here: the envpool backend is an extra of its own.
+        from torchrl_surprise.envs.envpool import EnvPoolMiniGridEnv
+
+        env = EnvPoolMiniGridEnv(
+            env_name,
+            num_envs=num_envs,
+            seed=seed,
+            num_threads=num_threads,
+            device=device,
+            env_kwargs=env_kwargs,
+        )
+        if not categorical_action_encoding:
+            env = env.append_transform(_OneHotAction())
+        return env
     register_minigrid_envs()
     _check_minigrid_id(env_name)
     env_fn = functools.partial(_make_single_minigrid, env_name, env_kwargs)
