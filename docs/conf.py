@@ -34,7 +34,9 @@ extensions = [
     "sphinx.ext.napoleon",
 ]
 
-exclude_patterns = ["_build"]
+# Each study's status.rst (written by recipes/results/aggregate.py) is a fragment
+# to include, not a page of its own.
+exclude_patterns = ["_build", "results/**/status.rst"]
 templates_path: list[str] = []
 
 html_theme = "alabaster"
