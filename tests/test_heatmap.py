@@ -319,7 +319,7 @@ def test_elliptical_map_scores_each_cell_after_the_episode_memory(env):
     for x, y, d in seen:
         assert after[y, x, d] < empty[y, x, d]
     # the transform's own episodes are left empty
-    assert transform._inv_cov.numel() == 0
+    assert transform.memory.inv_cov.numel() == 0
 
 
 def env_untouched(env):

@@ -187,3 +187,24 @@ def test_elliptical_memory_is_saved_so_a_resumed_run_continues_its_episodes():
     torch.testing.assert_close(
         second["next", "intrinsic_reward"], whole["next", "intrinsic_reward"][:, 3:]
     )
+
+
+def test_elliptical_memory_of_an_older_state_dict_loads():
+    # The memory used to be the transform's own ``_inv_cov`` buffer.
+    from tensordict import TensorDict
+
+    from torchrl_surprise.transforms import VAEEllipticalTransform
+
+    vae = StateVAE.for_vector(3, latent_dim=4, hidden_dim=8)
+    td = TensorDict(
+        {"next": {"observation": torch.randn(2, 3, 3), "reward": torch.zeros(2, 3, 1)}},
+        [2, 3],
+        names=[None, "time"],
+    )
+    source = VAEEllipticalTransform(vae, in_keys=["observation"])
+    source(td.clone())
+    state = source.state_dict()
+    state["_inv_cov"] = state.pop("memory.inv_cov")
+    resumed = VAEEllipticalTransform(vae, in_keys=["observation"])
+    resumed.load_state_dict(state)
+    torch.testing.assert_close(resumed.memory.inv_cov, source.memory.inv_cov)

@@ -7,6 +7,10 @@ from torchrl_surprise.transforms.base import (
     WorkerCopyWarning,
     make_coef_schedule,
 )
+from torchrl_surprise.transforms.episodic import (
+    EllipticalEpisodicMemory,
+    EpisodicVisits,
+)
 from torchrl_surprise.transforms.icm import ICMTransform
 from torchrl_surprise.transforms.precomputed import PrecomputedBonusTransform
 from torchrl_surprise.transforms.stochasticity import (
@@ -21,6 +25,8 @@ from torchrl_surprise.transforms.vae_surprise import (
 )
 
 __all__ = [
+    "EllipticalEpisodicMemory",
+    "EpisodicVisits",
     "ICMTransform",
     "IntrinsicRewardTransform",
     "LinearSchedule",

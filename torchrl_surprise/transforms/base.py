@@ -528,6 +528,17 @@ class IntrinsicRewardTransform(Transform):
             )
         return value
 
+    def _episode_ends(
+        self, next_tensordict: TensorDictBase, done_key: NestedKey
+    ) -> torch.Tensor | None:
+        """``done_key`` as a bool ``[*batch]`` (``None`` if absent), for episodic bonuses."""
+        done = next_tensordict.get(done_key, None)
+        if done is None:
+            return None
+        batch_size = next_tensordict.batch_size
+        done = self._per_transition(done_key, done, batch_size)
+        return done.reshape(batch_size).bool()
+
     def _compute_bonus(
         self, tensordict: TensorDictBase, next_tensordict: TensorDictBase
     ) -> torch.Tensor:

@@ -11,6 +11,7 @@ from tensordict.utils import NestedKey, unravel_key
 
 from torchrl_surprise.modules.vae import StateVAE, kl_to_standard_normal
 from torchrl_surprise.transforms.base import IntrinsicRewardTransform
+from torchrl_surprise.transforms.episodic import EllipticalEpisodicMemory
 
 __all__ = [
     "GLOBAL_BONUSES",
@@ -180,13 +181,15 @@ class VAEEllipticalTransform(VAESurpriseTransform):
     NovelD and E3B's follow-ups.
 
     The bonus depends on the order of states within each episode, so the
-    transform keeps one inverse matrix per env (a buffer: saved by
-    ``state_dict``, a resumed run continues its episodes). In an env it advances
-    one step per ``_step`` and restarts an env's memory when it is done or
-    reset; on a batch it walks the dimension named ``"time"`` (or ``time_dim``)
-    and restarts after each ``done``. A batch that is not time-ordered (a
-    replay-buffer sample) is refused. Call :meth:`reset_episodes` before
-    recomputing the bonus of a batch already seen.
+    transform keeps one inverse matrix per env in ``memory``, an
+    :class:`~torchrl_surprise.transforms.EllipticalEpisodicMemory` (the one
+    :class:`~torchrl_surprise.transforms.E3BTransform` uses; saved by
+    ``state_dict``, so a resumed run continues its episodes). In an env
+    (``_step``) it advances one step of every env and restarts an env's memory
+    when it is done or reset; on a batch (``forward``) it walks the dimension
+    named ``"time"`` (or ``time_dim``) and restarts after each ``done``. A batch
+    that is not time-ordered (a replay-buffer sample) is refused. Call
+    :meth:`reset_episodes` before recomputing the bonus of a batch already seen.
 
     Args:
         vae (StateVAE): the state VAE (trained by ``VAELoss``).
@@ -221,118 +224,63 @@ class VAEEllipticalTransform(VAESurpriseTransform):
         done_key: NestedKey = "done",
         **kwargs,
     ):
-        if not ridge > 0:
-            raise ValueError(f"ridge must be positive, got {ridge}.")
         if global_bonus not in GLOBAL_BONUSES:
             raise ValueError(
                 f"global_bonus must be one of {GLOBAL_BONUSES}, got {global_bonus!r}."
             )
+        memory = EllipticalEpisodicMemory(vae.latent_dim, ridge)
         super().__init__(vae, in_keys=in_keys, **kwargs)
-        self.ridge = float(ridge)
+        self.memory = memory
+        self.ridge = memory.ridge
         self.global_bonus = global_bonus
         self.done_key = unravel_key(done_key)
-        # C^{-1} per env, [*env_batch, latent, latent], in float64: rank-one
-        # updates over long episodes stay accurate.
-        self.register_buffer("_inv_cov", torch.zeros(0, dtype=torch.float64))
-        self._in_env_step = False
 
     def reset_episodes(self) -> None:
         """Forgets every episode in progress (their next states start afresh)."""
-        self._inv_cov = torch.zeros(0, dtype=torch.float64)
-
-    def _fresh(self, batch_shape, device) -> torch.Tensor:
-        eye = torch.eye(self.vae.latent_dim, dtype=torch.float64, device=device)
-        return (eye / self.ridge).expand(*batch_shape, -1, -1).clone()
-
-    def _memory(self, batch_shape, device) -> torch.Tensor:
-        expected = (*batch_shape, self.vae.latent_dim, self.vae.latent_dim)
-        if self._inv_cov.shape != expected:
-            if self._inv_cov.numel():
-                raise ValueError(
-                    f"{type(self).__name__}: it follows episodes of "
-                    f"{tuple(self._inv_cov.shape[:-2])} envs, this batch has "
-                    f"{tuple(batch_shape)}; call reset_episodes() to start afresh."
-                )
-            self._inv_cov = self._fresh(batch_shape, device)
-        return self._inv_cov
-
-    def _bonus_and_update(self, phi: torch.Tensor, done: torch.Tensor | None):
-        """The elliptical bonus of one step of every env, then ``C += phi phi^T``."""
-        inv = self._memory(phi.shape[:-1], phi.device)
-        u = phi.to(torch.float64)
-        inv_u = (inv @ u.unsqueeze(-1)).squeeze(-1)
-        bonus = (u * inv_u).sum(-1)
-        # Sherman-Morrison: (C + u u^T)^{-1} = C^{-1} - C^{-1}u u^T C^{-1} / (1 + u^T C^{-1} u)
-        inv = (
-            inv
-            - inv_u.unsqueeze(-1) * inv_u.unsqueeze(-2) / (1.0 + bonus)[..., None, None]
-        )
-        self._inv_cov = inv
-        if done is not None and done.any():
-            self._restart(done)
-        return bonus.to(phi.dtype)
-
-    def _restart(self, mask: torch.Tensor) -> None:
-        # The envs where ``mask`` is set start a new episode.
-        self._inv_cov = torch.where(
-            mask[..., None, None],
-            self._fresh(mask.shape, self._inv_cov.device),
-            self._inv_cov,
-        )
-
-    def _done(self, next_tensordict: TensorDictBase, shape) -> torch.Tensor | None:
-        done = next_tensordict.get(self.done_key, None)
-        if done is None:
-            return None
-        return done.reshape(shape).bool()
-
-    def _step(self, tensordict, next_tensordict):
-        self._in_env_step = True
-        try:
-            return super()._step(tensordict, next_tensordict)
-        finally:
-            self._in_env_step = False
+        self.memory.reset()
 
     def _reset(self, tensordict, tensordict_reset):
-        if not self._inv_cov.numel():
-            return tensordict_reset
-        mask = None if tensordict is None else tensordict.get("_reset", None)
-        if mask is None:
-            self.reset_episodes()
-        else:
-            self._restart(mask.reshape(self._inv_cov.shape[:-2]).bool())
+        self.memory.reset_from(tensordict)
         return tensordict_reset
 
-    def _compute_bonus(
-        self, tensordict: TensorDictBase, next_tensordict: TensorDictBase
-    ) -> torch.Tensor:
+    def _posterior(self, next_tensordict: TensorDictBase):
         observations = self._observations(next_tensordict, "the 'next' tensordict")
-        loc, scale = self.vae.posterior(*observations)
-        shape = next_tensordict.batch_size
-        if self._in_env_step:
-            bonus = self._bonus_and_update(loc, self._done(next_tensordict, shape))
-        else:
-            time_dim = self._time_dim(next_tensordict)
-            if time_dim is None:
-                raise ValueError(
-                    f"{type(self).__name__}: the episodic bonus needs time-ordered "
-                    "transitions: a batch with a dimension named 'time' (collectors "
-                    "name it) or time_dim set; a replay-buffer sample has neither."
-                )
-            time_dim = time_dim % len(shape)
-            done = self._done(next_tensordict, shape)
-            steps = []
-            for t in range(shape[time_dim]):
-                step_done = None if done is None else done.select(time_dim, t)
-                steps.append(self._bonus_and_update(loc.select(time_dim, t), step_done))
-            bonus = torch.stack(steps, time_dim)
+        return self.vae.posterior(*observations)
+
+    def _with_global(self, bonus, loc, scale) -> torch.Tensor:
+        bonus = bonus.to(loc.dtype)
         if self.global_bonus == "kl":
             bonus = bonus * kl_to_standard_normal(loc, scale)
         return bonus
 
+    def _compute_bonus(
+        self, tensordict: TensorDictBase, next_tensordict: TensorDictBase
+    ) -> torch.Tensor:
+        # The env path: one step of every env.
+        done = self._episode_ends(next_tensordict, self.done_key)
+        loc, scale = self._posterior(next_tensordict)
+        return self._with_global(self.memory.step(loc, done), loc, scale)
+
+    def _compute_batch_bonus(
+        self,
+        tensordict: TensorDictBase,
+        next_tensordict: TensorDictBase,
+        time_dim: int | None,
+    ) -> torch.Tensor:
+        if time_dim is None:
+            raise ValueError(
+                f"{type(self).__name__}: the episodic bonus needs time-ordered "
+                "transitions: a batch with a dimension named 'time' (collectors "
+                "name it) or time_dim set; a replay-buffer sample has neither."
+            )
+        done = self._episode_ends(next_tensordict, self.done_key)
+        loc, scale = self._posterior(next_tensordict)
+        bonus = self.memory.walk(loc, done, time_dim)
+        return self._with_global(bonus, loc, scale)
+
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
-        # The memory takes the shape of the envs it follows.
-        inv = state_dict.get(prefix + "_inv_cov")
-        if inv is not None:
-            self._inv_cov = torch.zeros_like(inv)
+        # Checkpoints written before the memory was a submodule keep it here.
+        old = state_dict.pop(prefix + "_inv_cov", None)
+        if old is not None:
+            state_dict[prefix + "memory.inv_cov"] = old
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)

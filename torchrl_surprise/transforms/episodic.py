@@ -1,0 +1,319 @@
+"""Per-env episodic memories shared by the episodic bonuses.
+
+An episodic bonus depends on what the agent has seen since its episode began,
+so it keeps one memory per env. Both memories here are modules: their state is
+part of the owning transform's ``state_dict`` (a resumed run continues its
+episodes), they restart the envs whose episode ends, and they advance either by
+one step of every env (:meth:`step`, an env's ``_step``) or along the time
+dimension of a collected batch (:meth:`walk`, ``forward``).
+
+* :class:`EllipticalEpisodicMemory`: ``C^{-1}`` with ``C = ridge * I + sum phi
+  phi^T`` over the episode, for E3B's elliptical bonus
+  (:class:`~torchrl_surprise.transforms.E3BTransform`,
+  :class:`~torchrl_surprise.transforms.VAEEllipticalTransform`).
+* :class:`EpisodicVisits`: the exact observations seen in the episode, for
+  NovelD's first-visit indicator
+  (:class:`~torchrl_surprise.transforms.NovelDTransform`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+from tensordict import TensorDictBase
+from torch import nn
+
+__all__ = ["EllipticalEpisodicMemory", "EpisodicVisits"]
+
+
+def _reset_mask(
+    tensordict: TensorDictBase | None, env_shape: torch.Size
+) -> torch.Tensor | None:
+    """The envs an env ``_reset`` restarts (``None``: all of them)."""
+    mask = None if tensordict is None else tensordict.get("_reset", None)
+    if mask is None:
+        return None
+    return mask.reshape(env_shape).bool()
+
+
+class EllipticalEpisodicMemory(nn.Module):
+    """``C^{-1}`` per env, ``C = ridge * I + sum over the episode of phi phi^T``.
+
+    The elliptical bonus of an embedding ``phi`` is ``phi^T C^{-1} phi`` with
+    ``C`` built from the embeddings seen *before* it in the episode; ``phi``
+    then joins ``C`` (a Sherman-Morrison rank-one update of the inverse). The
+    inverse is kept in float64 so that long episodes of rank-one updates stay
+    accurate. Its shape is that of the envs it follows, set by the first call.
+
+    Args:
+        dim (int): size of the embeddings.
+        ridge (float): ``lambda`` of ``C``'s ``lambda * I`` (E3B: 0.1).
+
+    Examples:
+        >>> import torch
+        >>> memory = EllipticalEpisodicMemory(dim=2, ridge=0.1)
+        >>> phi = torch.tensor([[1.0, 0.0], [0.0, 1.0]])  # two envs
+        >>> memory.step(phi)  # 1 / ridge: nothing seen yet
+        tensor([10., 10.], dtype=torch.float64)
+        >>> memory.step(phi)  # seen once: 1 / (ridge + 1) ... less novel
+        tensor([0.9091, 0.9091], dtype=torch.float64)
+        >>> memory.restart(torch.tensor([True, False]))
+        >>> memory.step(phi)
+        tensor([10.0000,  0.4762], dtype=torch.float64)
+    """
+
+    def __init__(self, dim: int, ridge: float = 0.1):
+        super().__init__()
+        if not ridge > 0:
+            raise ValueError(f"ridge must be positive, got {ridge}.")
+        self.dim = int(dim)
+        self.ridge = float(ridge)
+        self.register_buffer("inv_cov", torch.zeros(0, dtype=torch.float64))
+
+    @property
+    def env_shape(self) -> torch.Size | None:
+        """The shape of the envs followed, ``None`` before the first call."""
+        return self.inv_cov.shape[:-2] if self.inv_cov.numel() else None
+
+    def reset(self) -> None:
+        """Forgets every episode in progress."""
+        self.inv_cov = torch.zeros(0, dtype=torch.float64, device=self.inv_cov.device)
+
+    def _fresh(self, env_shape, device) -> torch.Tensor:
+        eye = torch.eye(self.dim, dtype=torch.float64, device=device)
+        return (eye / self.ridge).expand(*env_shape, -1, -1).clone()
+
+    def _memory(self, env_shape, device) -> torch.Tensor:
+        if self.env_shape is None:
+            self.inv_cov = self._fresh(env_shape, device)
+        elif self.env_shape != env_shape:
+            raise ValueError(
+                f"{type(self).__name__}: it follows episodes of "
+                f"{tuple(self.env_shape)} envs, this batch has {tuple(env_shape)}; "
+                "call reset_episodes() to start afresh."
+            )
+        return self.inv_cov
+
+    def restart(self, mask: torch.Tensor) -> None:
+        """The envs where ``mask`` (shape :attr:`env_shape`) is set start afresh."""
+        if self.env_shape is None or not mask.any():
+            return
+        self.inv_cov = torch.where(
+            mask.reshape(self.env_shape)[..., None, None],
+            self._fresh(self.env_shape, self.inv_cov.device),
+            self.inv_cov,
+        )
+
+    def reset_from(self, tensordict: TensorDictBase | None) -> None:
+        """Restarts the envs an env ``_reset`` call resets (all without a mask)."""
+        if self.env_shape is None:
+            return
+        mask = _reset_mask(tensordict, self.env_shape)
+        if mask is None:
+            self.reset()
+        else:
+            self.restart(mask)
+
+    def _check(self, phi: torch.Tensor) -> None:
+        if phi.shape[-1:] != (self.dim,):
+            raise ValueError(
+                f"{type(self).__name__}: expected embeddings of size {self.dim}, "
+                f"got shape {tuple(phi.shape)}."
+            )
+
+    def step(self, phi: torch.Tensor, done: torch.Tensor | None = None) -> torch.Tensor:
+        """The bonus of one step of every env, then ``C += phi phi^T``.
+
+        Args:
+            phi (torch.Tensor): ``[*envs, dim]``.
+            done (torch.Tensor, optional): ``[*envs]``; where set, the env
+                starts a new episode after this step.
+
+        Returns:
+            The bonus, ``[*envs]``, in float64.
+        """
+        self._check(phi)
+        inv = self._memory(phi.shape[:-1], phi.device)
+        u = phi.to(torch.float64)
+        inv_u = (inv @ u.unsqueeze(-1)).squeeze(-1)
+        bonus = (u * inv_u).sum(-1)
+        # Sherman-Morrison: (C + u u^T)^-1 = C^-1 - C^-1 u u^T C^-1 / (1 + u^T C^-1 u)
+        self.inv_cov = (
+            inv
+            - inv_u.unsqueeze(-1) * inv_u.unsqueeze(-2) / (1.0 + bonus)[..., None, None]
+        )
+        if done is not None:
+            self.restart(done)
+        return bonus
+
+    def walk(
+        self, phi: torch.Tensor, done: torch.Tensor | None, time_dim: int
+    ) -> torch.Tensor:
+        """The bonus of every step of a time-ordered batch, walking ``time_dim``.
+
+        Equal to :meth:`step` called on each time step in turn.
+
+        Args:
+            phi (torch.Tensor): ``[*batch, dim]``, ``batch`` holding ``time_dim``.
+            done (torch.Tensor, optional): ``[*batch]``.
+            time_dim (int): the time dimension of ``batch`` (non-negative).
+
+        Returns:
+            The bonus, ``[*batch]``, in float64.
+        """
+        self._check(phi)
+        phi = phi.movedim(time_dim, 0)
+        done = None if done is None else done.movedim(time_dim, 0)
+        steps = [
+            self.step(phi[t], None if done is None else done[t])
+            for t in range(phi.shape[0])
+        ]
+        if not steps:
+            return phi.new_zeros(phi.shape[:-1], dtype=torch.float64).movedim(
+                0, time_dim
+            )
+        return torch.stack(steps, 0).movedim(0, time_dim)
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        # The memory takes the shape of the envs it follows.
+        inv = state_dict.get(prefix + "inv_cov")
+        if inv is not None:
+            self.inv_cov = torch.zeros_like(inv)
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+
+class EpisodicVisits(nn.Module):
+    """The exact observations each env has seen in its current episode.
+
+    An observation is the bytes of its tensors (one per key, in order), so two
+    observations are the same state only if every byte is equal; no hash
+    collision can merge two states. A transition ``s -> s'`` marks both as seen
+    (``s`` is the first state of an episode the first time), so a state counts
+    as visited from its first occurrence on, the episode's first state
+    included. The sets are saved with ``state_dict``.
+
+    Examples:
+        >>> import torch
+        >>> visits = EpisodicVisits()
+        >>> s0, s1 = torch.tensor([[0, 0], [5, 5]]), torch.tensor([[0, 1], [5, 5]])
+        >>> going = torch.tensor([False, False])
+        >>> visits.step([s0], [s1], going)  # env 0 moves to a new state, env 1 stays
+        tensor([ True, False])
+        >>> visits.step([s1], [s0], torch.tensor([True, False]))  # env 0 is back
+        tensor([False, False])
+        >>> visits.step([s0], [s1], going)  # env 0 is in a new episode
+        tensor([ True, False])
+    """
+
+    def __init__(self):
+        super().__init__()
+        self._seen: list[set[bytes]] = []
+        self._env_shape: torch.Size | None = None
+
+    @property
+    def env_shape(self) -> torch.Size | None:
+        """The shape of the envs followed, ``None`` before the first call."""
+        return self._env_shape
+
+    def reset(self) -> None:
+        """Forgets every episode in progress."""
+        self._seen = []
+        self._env_shape = None
+
+    def restart(self, mask: torch.Tensor) -> None:
+        """The envs where ``mask`` (shape :attr:`env_shape`) is set start afresh."""
+        if self._env_shape is None:
+            return
+        for env in mask.reshape(-1).nonzero().flatten().tolist():
+            self._seen[env] = set()
+
+    def reset_from(self, tensordict: TensorDictBase | None) -> None:
+        """Restarts the envs an env ``_reset`` call resets (all without a mask)."""
+        if self._env_shape is None:
+            return
+        mask = _reset_mask(tensordict, self._env_shape)
+        if mask is None:
+            self.reset()
+        else:
+            self.restart(mask)
+
+    def _rows(self, observations: Sequence[torch.Tensor], env_shape) -> list[bytes]:
+        """The bytes of each env's observation, in env order."""
+        if self._env_shape is None:
+            self._env_shape = torch.Size(env_shape)
+            self._seen = [set() for _ in range(self._env_shape.numel())]
+        elif self._env_shape != env_shape:
+            raise ValueError(
+                f"{type(self).__name__}: it follows episodes of "
+                f"{tuple(self._env_shape)} envs, this batch has {tuple(env_shape)}; "
+                "call reset_episodes() to start afresh."
+            )
+        n = self._env_shape.numel()
+        parts = [
+            np.ascontiguousarray(obs.detach().cpu().numpy())
+            .reshape(n, -1)
+            .view(np.uint8)
+            for obs in observations
+        ]
+        return [row.tobytes() for row in np.concatenate(parts, axis=1)]
+
+    def step(
+        self,
+        observations: Sequence[torch.Tensor],
+        next_observations: Sequence[torch.Tensor],
+        done: torch.Tensor,
+    ) -> torch.Tensor:
+        """Whether each env's ``s'`` is seen for the first time in its episode.
+
+        Args:
+            observations (sequence of torch.Tensor): ``s`` of every env,
+                ``[*envs, ...]`` each.
+            next_observations (sequence of torch.Tensor): ``s'``, same shapes.
+            done (torch.Tensor): ``[*envs]`` (its shape gives the envs); where
+                set, the env starts a new episode after this step.
+
+        Returns:
+            A bool tensor ``[*envs]``.
+        """
+        rows = self._rows(observations, done.shape)
+        next_rows = self._rows(next_observations, done.shape)
+        first = []
+        for seen, row, next_row in zip(self._seen, rows, next_rows, strict=True):
+            seen.add(row)
+            first.append(next_row not in seen)
+            seen.add(next_row)
+        self.restart(done)
+        return torch.tensor(first, dtype=torch.bool).reshape(done.shape)
+
+    def walk(
+        self,
+        observations: Sequence[torch.Tensor],
+        next_observations: Sequence[torch.Tensor],
+        done: torch.Tensor,
+        time_dim: int,
+    ) -> torch.Tensor:
+        """:meth:`step` along ``time_dim`` of a time-ordered batch ``[*batch]``.
+
+        ``done`` has the batch's shape (zeros where the batch has no done).
+        """
+        moved = [o.movedim(time_dim, 0) for o in observations]
+        moved_next = [o.movedim(time_dim, 0) for o in next_observations]
+        done = done.movedim(time_dim, 0)
+        first = torch.zeros(done.shape, dtype=torch.bool)
+        for t in range(done.shape[0]):
+            first[t] = self.step(
+                [o[t] for o in moved], [o[t] for o in moved_next], done[t]
+            )
+        return first.movedim(0, time_dim)
+
+    def get_extra_state(self) -> dict:
+        """The seen observations of every env (bytes), for ``state_dict``."""
+        shape = None if self._env_shape is None else tuple(self._env_shape)
+        return {"env_shape": shape, "seen": [sorted(seen) for seen in self._seen]}
+
+    def set_extra_state(self, state: dict) -> None:
+        shape = state["env_shape"]
+        self._env_shape = None if shape is None else torch.Size(shape)
+        self._seen = [set(seen) for seen in state["seen"]]
