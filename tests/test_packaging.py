@@ -28,6 +28,7 @@ from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import check_env_specs
 from torchrl.testing.mocking_classes import ContinuousActionVecMockEnv
 import torchrl_surprise
+import torchrl_surprise.envs
 from torchrl_surprise import StateVAE, VAEEllipticalTransform, VAELoss
 
 vae = StateVAE.for_vector(7, latent_dim=4, hidden_dim=16)

@@ -202,7 +202,12 @@ def check_workers(cfg) -> None:
 
 def make_env(cfg, num_envs: int, seed: int, bonus: str = "none", rnd=None):
     """MiniGrid as one batched TorchRL env, with noise, episode stats (and RND)."""
-    env = make_minigrid_env(cfg.env.name, num_envs=num_envs)
+    env = make_minigrid_env(
+        cfg.env.name,
+        num_envs=num_envs,
+        backend=cfg.env.backend,
+        num_threads=cfg.env.num_threads,
+    )
     transforms = []
     if cfg.env.stochasticity:
         # Transforms are not seeded by env.set_seed in TorchRL 0.14: seed it here.
