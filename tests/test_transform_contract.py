@@ -21,6 +21,7 @@ from torchrl.data import (
     Composite,
     LazyTensorStorage,
     ReplayBuffer,
+    SamplerWithoutReplacement,
     TensorDictReplayBuffer,
     Unbounded,
 )
@@ -45,11 +46,16 @@ from torchrl_surprise import (
     StateVAE,
     VAESurpriseTransform,
 )
-from torchrl_surprise.modules import kl_to_standard_normal
+from torchrl_surprise.modules import E3BModel, RNDModel, kl_to_standard_normal
+from torchrl_surprise.transforms import E3BTransform, NovelDTransform
 
 OBS_DIM = 7  # the vector mock envs
 ACTION_DIM = 7
 KINDS = ["vae", "icm"]
+#: Episodic bonuses: their batch path walks a time dimension.
+EPISODIC = ["e3b", "noveld"]
+#: The transforms that pass TorchRL's eleven checks.
+CONTRACT_KINDS = KINDS + EPISODIC
 NORMALIZATIONS = ["none", "reward_std", "zscore", "return_std"]
 
 
@@ -60,15 +66,37 @@ NORMALIZATIONS = ["none", "reward_std", "zscore", "return_std"]
 def make_model(kind: str, obs_dim: int = OBS_DIM, action_dim: int = ACTION_DIM):
     if kind == "vae":
         return StateVAE.for_vector(obs_dim, latent_dim=4, hidden_dim=16)
+    if kind == "e3b":
+        return E3BModel.for_vector(obs_dim, action_dim, embedding_dim=8, hidden_dim=16)
+    if kind == "noveld":
+        return RNDModel.for_vector(obs_dim, embedding_dim=8, hidden_dim=16)
     return ICMModel.for_vector(obs_dim, action_dim, hidden_dim=16)
+
+
+TRANSFORMS = {
+    "vae": VAESurpriseTransform,
+    "icm": ICMTransform,
+    "e3b": E3BTransform,
+    "noveld": NovelDTransform,
+}
 
 
 def make_transform(kind: str, model=None, **kwargs):
     if model is None:
         model = make_model(kind)
-    if kind == "vae":
-        return VAESurpriseTransform(model, **kwargs)
-    return ICMTransform(model, **kwargs)
+    return TRANSFORMS[kind](model, **kwargs)
+
+
+def time_ordered(kind: str, td: TensorDict) -> TensorDict:
+    """An episodic bonus reads its last dimension as time (collectors name it)."""
+    if kind in EPISODIC:
+        td.refine_names(*[None] * (td.ndim - 1), "time")
+    return td
+
+
+def reset_episodes(transform) -> None:
+    if hasattr(transform, "reset_episodes"):
+        transform.reset_episodes()
 
 
 def make_env(kind: str, **kwargs) -> TransformedEnv:
@@ -78,30 +106,86 @@ def make_env(kind: str, **kwargs) -> TransformedEnv:
 
 
 def make_stacked_bonus_env() -> TransformedEnv:
-    """Both bonuses, the ICM one stacked on the VAE-mixed reward."""
+    """All four bonuses, each stacked on the reward the one before it mixed."""
     return TransformedEnv(
         ContinuousActionVecMockEnv(),
         Compose(
             make_transform("vae", coef=0.5),
-            make_transform(
-                "icm",
-                coef=0.25,
-                intrinsic_reward_key="icm_reward",
-                extrinsic_reward_key="reward_before_icm",
-            ),
+            *[
+                make_transform(
+                    kind,
+                    coef=coef,
+                    intrinsic_reward_key=f"{kind}_reward",
+                    extrinsic_reward_key=f"reward_before_{kind}",
+                )
+                for kind, coef in [("icm", 0.25), ("e3b", 0.125), ("noveld", 0.0625)]
+            ],
         ),
     )
 
 
 def bonus_model(transform):
-    return (
-        transform.vae if isinstance(transform, VAESurpriseTransform) else transform.icm
-    )
+    for name in ("vae", "icm", "model", "rnd"):
+        if hasattr(transform, name):
+            return getattr(transform, name)
+    raise AssertionError(type(transform))
+
+
+def reference_episodic_bonus(transform, td: TensorDict) -> torch.Tensor:
+    """E3B's or NovelD's bonus by its definition, episode by episode.
+
+    ``td`` is ``[*envs, time]``; the bonus is ``[*envs, time, 1]``.
+    """
+    shape = td.batch_size
+    flat = td.reshape(-1, shape[-1]) if td.ndim > 1 else td.unsqueeze(0)
+    done = flat.get(("next", "done"), None)
+    done = torch.zeros(flat.shape, dtype=torch.bool) if done is None else done
+    done = done.reshape(flat.shape)
+    bonus = torch.zeros(flat.shape, dtype=torch.float64)
+    nxt = [flat["next", key] for key in transform.in_keys]
+    if isinstance(transform, E3BTransform):
+        phi = transform.model.embed(*nxt).double()
+        eye = torch.eye(phi.shape[-1], dtype=torch.float64)
+        for env in range(flat.shape[0]):
+            cov = transform.ridge * eye
+            for t in range(flat.shape[1]):
+                u = phi[env, t]
+                bonus[env, t] = u @ torch.linalg.solve(cov, u)
+                cov = cov + torch.outer(u, u)
+                if done[env, t]:
+                    cov = transform.ridge * eye
+    else:
+        rnd = transform.rnd
+
+        def novelty(obs):
+            return (rnd.predictor(*obs) - rnd.target(*obs)).norm(dim=-1).double()
+
+        now = [flat[key] for key in transform.in_keys]
+        gain = (novelty(nxt) - transform.alpha * novelty(now)).clamp_min(0)
+
+        def state(source, env, t):
+            return tuple(
+                tuple(source[key][env, t].reshape(-1).tolist())
+                for key in transform.visit_keys
+            )
+
+        for env in range(flat.shape[0]):
+            seen = set()
+            for t in range(flat.shape[1]):
+                seen.add(state(flat, env, t))
+                first = state(flat["next"], env, t) not in seen
+                seen.add(state(flat["next"], env, t))
+                bonus[env, t] = gain[env, t] * first
+                if done[env, t]:
+                    seen = set()
+    return bonus.float().reshape(*shape, 1)
 
 
 def expected_bonus(transform, td: TensorDict) -> torch.Tensor:
     """The bonus recomputed straight from the model, shaped like the reward."""
     with torch.no_grad():
+        if isinstance(transform, (E3BTransform, NovelDTransform)):
+            return reference_episodic_bonus(transform, td)
         if isinstance(transform, VAESurpriseTransform):
             obs = [td["next", key] for key in transform.in_keys]
             bonus = transform.vae.kl(*obs)
@@ -128,7 +212,7 @@ def perturb(model: nn.Module) -> None:
 # ============================================ TorchRL's eleven contract checks
 
 
-@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("kind", CONTRACT_KINDS)
 @pytest.mark.parametrize("normalization", ["none", "zscore"])
 def test_single_trans_env_check(kind, normalization):
     env = make_env(kind, normalization=normalization)
@@ -150,7 +234,7 @@ def test_single_trans_env_check(kind, normalization):
     assert env.full_action_spec == env.base_env.full_action_spec
 
 
-@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("kind", CONTRACT_KINDS)
 def test_serial_trans_env_check(kind):
     env = SerialEnv(2, partial(make_env, kind))
     try:
@@ -162,68 +246,76 @@ def test_serial_trans_env_check(kind):
 def test_parallel_trans_env_check_and_trans_parallel_env_check():
     # Spawning a worker costs 3-10 s on this shared machine, so one ParallelEnv
     # (spawn, as the recipes use it: the factory is pickled) serves both checks
-    # for both transforms: the workers hold a VAE and an ICM transform (parallel
-    # env check) and two more wrap the parallel env (transform over a parallel
+    # for all transforms: the workers hold the four bonuses (parallel env
+    # check) and four more wrap the parallel env (transform over a parallel
     # env). Each keeps the reward it receives under its own extrinsic key, which
     # is how bonuses stack.
     penv = ParallelEnv(2, make_stacked_bonus_env)
     try:
         check_env_specs(penv)
-        outer_vae = make_transform(
-            "vae",
-            coef=0.1,
-            intrinsic_reward_key="outer_vae_reward",
-            extrinsic_reward_key="reward_before_outer_vae",
-        )
-        outer_icm = make_transform(
-            "icm",
-            coef=0.2,
-            intrinsic_reward_key="outer_icm_reward",
-            extrinsic_reward_key="reward_before_outer_icm",
-        )
-        env = TransformedEnv(penv, Compose(outer_vae, outer_icm))
+        coefs = {"vae": 0.1, "icm": 0.2, "e3b": 0.3, "noveld": 0.4}
+        outer = {
+            kind: make_transform(
+                kind,
+                coef=coef,
+                intrinsic_reward_key=f"outer_{kind}_reward",
+                extrinsic_reward_key=f"reward_before_outer_{kind}",
+            )
+            for kind, coef in coefs.items()
+        }
+        env = TransformedEnv(penv, Compose(*outer.values()))
         check_env_specs(env)
+        for transform in outer.values():
+            reset_episodes(transform)
         rollout = env.rollout(3)
         nxt = rollout["next"]
-        assert nxt["outer_icm_reward"].shape == (2, 3, 1)
+        assert nxt["outer_noveld_reward"].shape == (2, 3, 1)
         mixed = nxt["extrinsic_reward"] + 0.5 * nxt["intrinsic_reward"]
-        assert_close(nxt["reward_before_icm"], mixed)
-        mixed = mixed + 0.25 * nxt["icm_reward"]
-        assert_close(nxt["reward_before_outer_vae"], mixed)
-        mixed = mixed + 0.1 * nxt["outer_vae_reward"]
-        assert_close(nxt["reward_before_outer_icm"], mixed)
-        assert_close(nxt["reward"], mixed + 0.2 * nxt["outer_icm_reward"])
+        inner = [("icm", 0.25), ("e3b", 0.125), ("noveld", 0.0625)]
+        for kind, coef in inner:
+            assert_close(nxt[f"reward_before_{kind}"], mixed)
+            mixed = mixed + coef * nxt[f"{kind}_reward"]
+        for kind, coef in coefs.items():
+            assert_close(nxt[f"reward_before_outer_{kind}"], mixed)
+            mixed = mixed + coef * nxt[f"outer_{kind}_reward"]
+        assert_close(nxt["reward"], mixed)
         # The outer models live in this process: the batch path agrees with them.
-        assert_close(nxt["outer_vae_reward"], expected_bonus(outer_vae, rollout))
-        assert_close(nxt["outer_icm_reward"], expected_bonus(outer_icm, rollout))
+        for kind, transform in outer.items():
+            assert_close(
+                nxt[f"outer_{kind}_reward"], expected_bonus(transform, rollout)
+            )
     finally:
         if not penv.is_closed:
             penv.close()
 
 
-@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("kind", CONTRACT_KINDS)
 def test_trans_serial_env_check(kind):
     transform = make_transform(kind, coef=0.5)
     env = TransformedEnv(SerialEnv(2, ContinuousActionVecMockEnv), transform)
     try:
         check_env_specs(env)
+        reset_episodes(transform)
         rollout = env.rollout(4)
         assert rollout["next", "intrinsic_reward"].shape == (2, 4, 1)
         assert_close(
             rollout["next", "intrinsic_reward"], expected_bonus(transform, rollout)
         )
         # The batch path on the [env, time] rollout gives the env path's values.
+        reset_episodes(transform)
         recomputed = transform(rollout.clone())
         assert_close(recomputed["next", "reward"], rollout["next", "reward"])
     finally:
         env.close()
 
 
-@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("kind", CONTRACT_KINDS)
 @pytest.mark.parametrize("batch_shape", [(), (4,), (2, 3)])
 def test_transform_no_env(kind, batch_shape, make_vector_batch):
+    if kind in EPISODIC and not batch_shape:
+        pytest.skip("an episodic bonus needs a time dimension")
     transform = make_transform(kind, coef=0.5)
-    td = make_vector_batch(batch_shape)
+    td = time_ordered(kind, make_vector_batch(batch_shape))
     out = transform(td.clone())
     bonus = expected_bonus(transform, td)
     assert out.batch_size == td.batch_size
@@ -236,17 +328,18 @@ def test_transform_no_env(kind, batch_shape, make_vector_batch):
     assert_close(out["next", "observation"], td["next", "observation"])
 
 
-@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("kind", CONTRACT_KINDS)
 def test_transform_compose(kind, make_vector_batch):
     transform = make_transform(kind, coef=0.5)
     env = TransformedEnv(ContinuousActionVecMockEnv(), Compose(transform))
     check_env_specs(env)
-    td = make_vector_batch((3,))
+    reset_episodes(transform)
+    td = time_ordered(kind, make_vector_batch((3,)))
     out = Compose(transform.clone())(td.clone())
     assert_close(out, transform(td.clone()))
 
 
-@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("kind", CONTRACT_KINDS)
 def test_transform_env(kind):
     # A real env: gymnasium's Pendulum-v1 (3-d observation, 1-d action).
     base = GymEnv("Pendulum-v1")
@@ -261,6 +354,7 @@ def test_transform_env(kind):
         assert "intrinsic_reward" not in td.keys(True, True)
         td = env.rand_step(td)
         assert torch.isfinite(td["next", "intrinsic_reward"]).all()
+        reset_episodes(transform)
         rollout = env.rollout(5)
         nxt = rollout["next"]
         assert_close(nxt["intrinsic_reward"], expected_bonus(transform, rollout))
@@ -271,19 +365,28 @@ def test_transform_env(kind):
         env.close()
 
 
-@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("kind", CONTRACT_KINDS)
 def test_transform_model(kind, make_vector_batch):
     transform = make_transform(kind, coef=0.5)
     model = nn.Sequential(transform, nn.Identity())
-    td = make_vector_batch((5,))
-    assert_close(model(td.clone()), transform(td.clone()))
+    td = time_ordered(kind, make_vector_batch((5,)))
+    out = model(td.clone())
+    reset_episodes(transform)
+    assert_close(out, transform(td.clone()))
 
 
-@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("kind", CONTRACT_KINDS)
 @pytest.mark.parametrize("rbclass", [ReplayBuffer, TensorDictReplayBuffer])
 def test_transform_rb(kind, rbclass, make_vector_batch):
-    transform = make_transform(kind, coef=0.5)
-    rb = rbclass(storage=LazyTensorStorage(16), batch_size=8)
+    if kind in EPISODIC:
+        # Samples taken in storage order are one env's time steps (time_dim=0);
+        # a shuffled sample is refused (tests/test_episodic_bonuses.py).
+        transform = make_transform(kind, coef=0.5, time_dim=0)
+        sampler = SamplerWithoutReplacement(shuffle=False)
+    else:
+        transform = make_transform(kind, coef=0.5)
+        sampler = None
+    rb = rbclass(storage=LazyTensorStorage(16), batch_size=8, sampler=sampler)
     rb.append_transform(transform)
     data = make_vector_batch((16,))
     # Stored with a stale bonus already mixed in, as a collector would leave it.
@@ -301,6 +404,7 @@ def test_transform_rb(kind, rbclass, make_vector_batch):
 
     # A model update is seen by the next sample: the bonus is fresh, not stored.
     perturb(bonus_model(transform))
+    reset_episodes(transform)
     sample = rb.sample()
     fresh = expected_bonus(transform, sample)
     assert_close(sample["next", "intrinsic_reward"], fresh)
@@ -308,7 +412,7 @@ def test_transform_rb(kind, rbclass, make_vector_batch):
     assert (stored["next", "intrinsic_reward"] == 123.0).all()
 
 
-@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("kind", CONTRACT_KINDS)
 def test_transform_inverse(kind, make_vector_batch):
     # The bonus is not invertible: ``inv`` (applied to actions on the way into
     # the env, and by replay buffers on extend) must leave data unchanged.

@@ -1,6 +1,8 @@
-"""Networks: the state VAE, observation encoders and the ICM networks."""
+"""Networks: the state VAE, observation encoders, and the ICM, E3B and RND networks."""
 
-from torchrl_surprise.modules.icm import ICMModel
+from torchrl_surprise.modules.e3b import E3BModel
+from torchrl_surprise.modules.icm import ICMModel, InverseDynamicsModel
+from torchrl_surprise.modules.rnd import RNDModel
 from torchrl_surprise.modules.vae import (
     GaussianVectorDecoder,
     MiniGridDecoder,
@@ -11,10 +13,13 @@ from torchrl_surprise.modules.vae import (
 )
 
 __all__ = [
+    "E3BModel",
     "GaussianVectorDecoder",
     "ICMModel",
+    "InverseDynamicsModel",
     "MiniGridDecoder",
     "MiniGridEncoder",
+    "RNDModel",
     "StateVAE",
     "VectorEncoder",
     "kl_to_standard_normal",

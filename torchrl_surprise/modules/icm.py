@@ -14,33 +14,25 @@ from torchrl_surprise.modules.vae import (
     VectorEncoder,
 )
 
-__all__ = ["ICMModel"]
+__all__ = ["ICMModel", "InverseDynamicsModel"]
 
 
-class ICMModel(nn.Module):
-    """Feature encoder ``phi``, inverse model and forward model of ICM.
+class InverseDynamicsModel(nn.Module):
+    """An embedding ``phi`` and an inverse model ``(phi(s), phi(s')) -> a``.
 
-    * ``phi(s)``: observation features (any encoder exposing ``out_features``).
-    * inverse model: ``(phi(s), phi(s')) -> a`` (logits for discrete actions, a
-      mean for continuous ones).
-    * forward model: ``(phi(s), a) -> phi(s')``; its squared error is the bonus.
+    Trained by :class:`~torchrl_surprise.objectives.InverseDynamicsLoss`, the
+    embedding keeps what the agent's actions control and drops the rest (noise
+    the agent cannot affect). :class:`ICMModel` adds a forward model on it;
+    :class:`~torchrl_surprise.modules.E3BModel` uses it as E3B's embedding.
 
     Args:
-        encoder (nn.Module): maps observations (in ``in_keys`` order) to features.
+        encoder (nn.Module): maps observations (in ``in_keys`` order) to features;
+            must expose ``out_features``.
         action_dim (int): number of discrete actions, or the size of a continuous
             action.
         discrete (bool): discrete actions (integers or one-hot) or continuous.
-        hidden_dim (int): width of the inverse and forward models.
+        hidden_dim (int): width of the inverse model.
         in_keys (sequence of NestedKey): observation keys the model reads.
-
-    Examples:
-        >>> import torch
-        >>> icm = ICMModel.for_minigrid(num_actions=7, hidden_dim=32)
-        >>> image = torch.randint(0, 3, (4, 7, 7, 3), dtype=torch.uint8)
-        >>> direction = torch.zeros(4, dtype=torch.long)
-        >>> action = torch.randint(0, 7, (4,))
-        >>> icm.forward_error((image, direction), action, (image, direction)).shape
-        torch.Size([4])
     """
 
     def __init__(
@@ -63,48 +55,6 @@ class ICMModel(nn.Module):
             OneDNNLinear(2 * feat, hidden_dim),
             nn.ReLU(),
             OneDNNLinear(hidden_dim, action_dim),
-        )
-        self.forward_model = nn.Sequential(
-            OneDNNLinear(feat + action_dim, hidden_dim),
-            nn.ReLU(),
-            OneDNNLinear(hidden_dim, feat),
-        )
-
-    @classmethod
-    def for_minigrid(
-        cls, num_actions: int = 7, hidden_dim: int = 256, use_direction: bool = True
-    ) -> ICMModel:
-        """ICM on MiniGrid's symbolic grid (``"image"``, ``"direction"``).
-
-        Args:
-            num_actions (int): number of discrete actions.
-            hidden_dim (int): width of the encoder and the models.
-            use_direction (bool): also encode the direction.
-        """
-        return cls(
-            MiniGridEncoder(hidden_dim=hidden_dim, use_direction=use_direction),
-            num_actions,
-            discrete=True,
-            hidden_dim=hidden_dim,
-            in_keys=["image", "direction"] if use_direction else ["image"],
-        )
-
-    @classmethod
-    def for_vector(
-        cls, obs_dim: int, action_dim: int, hidden_dim: int = 256
-    ) -> ICMModel:
-        """ICM on flat observations with continuous actions.
-
-        Args:
-            obs_dim (int): observation size.
-            action_dim (int): action size.
-            hidden_dim (int): width of the encoder and the models.
-        """
-        return cls(
-            VectorEncoder(obs_dim, hidden_dim=hidden_dim),
-            action_dim,
-            discrete=False,
-            hidden_dim=hidden_dim,
         )
 
     def encode_action(self, action: torch.Tensor) -> torch.Tensor:
@@ -167,6 +117,86 @@ class ICMModel(nn.Module):
             phi, phi_next = self.encoder(*stacked).unbind(0)
             return phi, phi_next
         return self.features(observations), self.features(next_observations)
+
+
+class ICMModel(InverseDynamicsModel):
+    """Feature encoder ``phi``, inverse model and forward model of ICM.
+
+    * ``phi(s)``: observation features (any encoder exposing ``out_features``).
+    * inverse model: ``(phi(s), phi(s')) -> a`` (logits for discrete actions, a
+      mean for continuous ones).
+    * forward model: ``(phi(s), a) -> phi(s')``; its squared error is the bonus.
+
+    Args:
+        encoder (nn.Module): maps observations (in ``in_keys`` order) to features.
+        action_dim (int): number of discrete actions, or the size of a continuous
+            action.
+        discrete (bool): discrete actions (integers or one-hot) or continuous.
+        hidden_dim (int): width of the inverse and forward models.
+        in_keys (sequence of NestedKey): observation keys the model reads.
+
+    Examples:
+        >>> import torch
+        >>> icm = ICMModel.for_minigrid(num_actions=7, hidden_dim=32)
+        >>> image = torch.randint(0, 3, (4, 7, 7, 3), dtype=torch.uint8)
+        >>> direction = torch.zeros(4, dtype=torch.long)
+        >>> action = torch.randint(0, 7, (4,))
+        >>> icm.forward_error((image, direction), action, (image, direction)).shape
+        torch.Size([4])
+    """
+
+    def __init__(
+        self,
+        encoder: nn.Module,
+        action_dim: int,
+        discrete: bool = True,
+        hidden_dim: int = 256,
+        in_keys: Sequence[NestedKey] = ("observation",),
+    ):
+        super().__init__(encoder, action_dim, discrete, hidden_dim, in_keys)
+        feat = encoder.out_features
+        self.forward_model = nn.Sequential(
+            OneDNNLinear(feat + action_dim, hidden_dim),
+            nn.ReLU(),
+            OneDNNLinear(hidden_dim, feat),
+        )
+
+    @classmethod
+    def for_minigrid(
+        cls, num_actions: int = 7, hidden_dim: int = 256, use_direction: bool = True
+    ) -> ICMModel:
+        """ICM on MiniGrid's symbolic grid (``"image"``, ``"direction"``).
+
+        Args:
+            num_actions (int): number of discrete actions.
+            hidden_dim (int): width of the encoder and the models.
+            use_direction (bool): also encode the direction.
+        """
+        return cls(
+            MiniGridEncoder(hidden_dim=hidden_dim, use_direction=use_direction),
+            num_actions,
+            discrete=True,
+            hidden_dim=hidden_dim,
+            in_keys=["image", "direction"] if use_direction else ["image"],
+        )
+
+    @classmethod
+    def for_vector(
+        cls, obs_dim: int, action_dim: int, hidden_dim: int = 256
+    ) -> ICMModel:
+        """ICM on flat observations with continuous actions.
+
+        Args:
+            obs_dim (int): observation size.
+            action_dim (int): action size.
+            hidden_dim (int): width of the encoder and the models.
+        """
+        return cls(
+            VectorEncoder(obs_dim, hidden_dim=hidden_dim),
+            action_dim,
+            discrete=False,
+            hidden_dim=hidden_dim,
+        )
 
     def forward_error(
         self,

@@ -7,11 +7,14 @@ from torchrl_surprise.transforms.base import (
     WorkerCopyWarning,
     make_coef_schedule,
 )
+from torchrl_surprise.transforms.e3b import E3BTransform
 from torchrl_surprise.transforms.episodic import (
     EllipticalEpisodicMemory,
+    EpisodicMemory,
     EpisodicVisits,
 )
 from torchrl_surprise.transforms.icm import ICMTransform
+from torchrl_surprise.transforms.noveld import NovelDTransform
 from torchrl_surprise.transforms.precomputed import PrecomputedBonusTransform
 from torchrl_surprise.transforms.stochasticity import (
     STOCHASTICITY_LEVELS,
@@ -25,12 +28,15 @@ from torchrl_surprise.transforms.vae_surprise import (
 )
 
 __all__ = [
+    "E3BTransform",
     "EllipticalEpisodicMemory",
+    "EpisodicMemory",
     "EpisodicVisits",
     "ICMTransform",
     "IntrinsicRewardTransform",
     "LinearSchedule",
     "NORMALIZATIONS",
+    "NovelDTransform",
     "PrecomputedBonusTransform",
     "STOCHASTICITY_LEVELS",
     "StochasticityTransform",

@@ -23,6 +23,8 @@ from torchrl.data.tensor_specs import Composite, Unbounded
 from torchrl.envs.transforms import Compose, Transform
 from torchrl.envs.transforms.rnd import RunningMeanStd
 
+from torchrl_surprise.transforms.episodic import EpisodicMemory
+
 __all__ = [
     "CONTRIBUTIONS_KEY",
     "IntrinsicRewardTransform",
@@ -416,6 +418,19 @@ class IntrinsicRewardTransform(Transform):
         """Whether the statistics are frozen."""
         return self._frozen
 
+    def clone(self) -> IntrinsicRewardTransform:
+        """A copy sharing the bonus model, with its own episodic memories.
+
+        TorchRL's ``clone`` shares submodules; an
+        :class:`~torchrl_surprise.transforms.EpisodicMemory` is copied instead,
+        so the copy's episodes (on another env, or in evaluation) are its own.
+        """
+        other = super().clone()
+        for name, module in self.named_children():
+            if isinstance(module, EpisodicMemory):
+                setattr(other, name, copy.deepcopy(module))
+        return other
+
     def frozen_copy(self) -> IntrinsicRewardTransform:
         """A frozen copy with its own statistics that shares the bonus model."""
         other = self.clone()
@@ -482,10 +497,14 @@ class IntrinsicRewardTransform(Transform):
 
     # -------------------------------------------------------------- reading
     def _observations(
-        self, tensordict: TensorDictBase, where: str
+        self,
+        tensordict: TensorDictBase,
+        where: str,
+        keys: Sequence[NestedKey] | None = None,
     ) -> list[torch.Tensor]:
+        """The tensors of ``keys`` (default ``in_keys``), checked to be finite."""
         observations = []
-        for key in self.in_keys:
+        for key in self.in_keys if keys is None else keys:
             value = tensordict.get(key, None)
             if value is None:
                 available = sorted(
@@ -538,6 +557,16 @@ class IntrinsicRewardTransform(Transform):
         batch_size = next_tensordict.batch_size
         done = self._per_transition(done_key, done, batch_size)
         return done.reshape(batch_size).bool()
+
+    def _require_time_dim(self, time_dim: int | None) -> int:
+        """``time_dim``, or an error for a bonus that needs time-ordered batches."""
+        if time_dim is None:
+            raise ValueError(
+                f"{type(self).__name__}: the episodic bonus needs time-ordered "
+                "transitions: a batch with a dimension named 'time' (collectors "
+                "name it) or time_dim set; a replay-buffer sample has neither."
+            )
+        return time_dim
 
     def _compute_bonus(
         self, tensordict: TensorDictBase, next_tensordict: TensorDictBase

@@ -25,20 +25,44 @@ import torch
 from tensordict import TensorDictBase
 from torch import nn
 
-__all__ = ["EllipticalEpisodicMemory", "EpisodicVisits"]
+__all__ = ["EllipticalEpisodicMemory", "EpisodicMemory", "EpisodicVisits"]
 
 
-def _reset_mask(
-    tensordict: TensorDictBase | None, env_shape: torch.Size
-) -> torch.Tensor | None:
-    """The envs an env ``_reset`` restarts (``None``: all of them)."""
-    mask = None if tensordict is None else tensordict.get("_reset", None)
-    if mask is None:
-        return None
-    return mask.reshape(env_shape).bool()
+class EpisodicMemory(nn.Module):
+    """What an episodic bonus remembers of each env's current episode.
+
+    Subclasses define :attr:`env_shape`, :meth:`reset` and :meth:`restart`;
+    :meth:`reset_from` serves a transform's ``_reset``. Each copy of a bonus
+    transform (``clone()``, ``frozen_copy()``) gets its own copy of its
+    memories, so evaluating a frozen copy on other envs leaves the training
+    episodes alone.
+    """
+
+    @property
+    def env_shape(self) -> torch.Size | None:
+        """The shape of the envs followed, ``None`` before the first call."""
+        raise NotImplementedError
+
+    def reset(self) -> None:
+        """Forgets every episode in progress."""
+        raise NotImplementedError
+
+    def restart(self, mask: torch.Tensor) -> None:
+        """The envs where ``mask`` (shape :attr:`env_shape`) is set start afresh."""
+        raise NotImplementedError
+
+    def reset_from(self, tensordict: TensorDictBase | None) -> None:
+        """Restarts the envs an env ``_reset`` call resets (all without a mask)."""
+        if self.env_shape is None:
+            return
+        mask = None if tensordict is None else tensordict.get("_reset", None)
+        if mask is None:
+            self.reset()
+        else:
+            self.restart(mask.reshape(self.env_shape).bool())
 
 
-class EllipticalEpisodicMemory(nn.Module):
+class EllipticalEpisodicMemory(EpisodicMemory):
     """``C^{-1}`` per env, ``C = ridge * I + sum over the episode of phi phi^T``.
 
     The elliptical bonus of an embedding ``phi`` is ``phi^T C^{-1} phi`` with
@@ -105,16 +129,6 @@ class EllipticalEpisodicMemory(nn.Module):
             self._fresh(self.env_shape, self.inv_cov.device),
             self.inv_cov,
         )
-
-    def reset_from(self, tensordict: TensorDictBase | None) -> None:
-        """Restarts the envs an env ``_reset`` call resets (all without a mask)."""
-        if self.env_shape is None:
-            return
-        mask = _reset_mask(tensordict, self.env_shape)
-        if mask is None:
-            self.reset()
-        else:
-            self.restart(mask)
 
     def _check(self, phi: torch.Tensor) -> None:
         if phi.shape[-1:] != (self.dim,):
@@ -184,7 +198,7 @@ class EllipticalEpisodicMemory(nn.Module):
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
 
-class EpisodicVisits(nn.Module):
+class EpisodicVisits(EpisodicMemory):
     """The exact observations each env has seen in its current episode.
 
     An observation is the bytes of its tensors (one per key, in order), so two
@@ -228,16 +242,6 @@ class EpisodicVisits(nn.Module):
             return
         for env in mask.reshape(-1).nonzero().flatten().tolist():
             self._seen[env] = set()
-
-    def reset_from(self, tensordict: TensorDictBase | None) -> None:
-        """Restarts the envs an env ``_reset`` call resets (all without a mask)."""
-        if self._env_shape is None:
-            return
-        mask = _reset_mask(tensordict, self._env_shape)
-        if mask is None:
-            self.reset()
-        else:
-            self.restart(mask)
 
     def _rows(self, observations: Sequence[torch.Tensor], env_shape) -> list[bytes]:
         """The bytes of each env's observation, in env order."""

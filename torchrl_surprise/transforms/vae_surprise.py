@@ -267,12 +267,7 @@ class VAEEllipticalTransform(VAESurpriseTransform):
         next_tensordict: TensorDictBase,
         time_dim: int | None,
     ) -> torch.Tensor:
-        if time_dim is None:
-            raise ValueError(
-                f"{type(self).__name__}: the episodic bonus needs time-ordered "
-                "transitions: a batch with a dimension named 'time' (collectors "
-                "name it) or time_dim set; a replay-buffer sample has neither."
-            )
+        time_dim = self._require_time_dim(time_dim)
         done = self._episode_ends(next_tensordict, self.done_key)
         loc, scale = self._posterior(next_tensordict)
         bonus = self.memory.walk(loc, done, time_dim)
