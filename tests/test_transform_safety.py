@@ -8,6 +8,9 @@
   transform with another.
 * A bonus transform inside the envs of batched-env workers warns that the
   workers' statistics and model are copies.
+* Entries with one value per transition (reward, done, a precomputed bonus) of
+  another shape are refused with the key and the expected shape; a batch with
+  an empty time dimension gives empty bonuses.
 """
 
 from __future__ import annotations
@@ -337,3 +340,76 @@ def test_bonus_on_the_outer_env_does_not_warn():
     finally:
         if not penv.is_closed:
             penv.close()
+
+
+# ============================================ 4. shapes and empty batches
+
+
+def _all_transforms(**kwargs):
+    from torchrl_surprise.modules import E3BModel, RNDModel
+    from torchrl_surprise.transforms import (
+        E3BTransform,
+        NovelDTransform,
+        PrecomputedBonusTransform,
+        VAEEllipticalTransform,
+    )
+
+    vae = StateVAE.for_vector(OBS_DIM, latent_dim=4, hidden_dim=16)
+    return {
+        "vae": make_vae_transform(**kwargs),
+        "icm": make_icm_transform(**kwargs),
+        "elliptical": VAEEllipticalTransform(vae, **kwargs),
+        "e3b": E3BTransform(E3BModel.for_vector(OBS_DIM, ACTION_DIM, 8, 16), **kwargs),
+        "noveld": NovelDTransform(RNDModel.for_vector(OBS_DIM, 8, 16), **kwargs),
+        "precomputed": PrecomputedBonusTransform("rnd_reward", **kwargs),
+    }
+
+
+def _timed_batch(make_vector_batch, batch_shape=(4, 3)):
+    td = make_vector_batch(batch_shape)
+    td["next", "done"] = torch.zeros(*batch_shape, 1, dtype=torch.bool)
+    td["next", "rnd_reward"] = torch.rand(*batch_shape, 1)
+    return td.refine_names(None, "time")
+
+
+@pytest.mark.parametrize(
+    "name", ["vae", "icm", "elliptical", "e3b", "noveld", "precomputed"]
+)
+@pytest.mark.parametrize("normalization", ["none", "zscore", "return_std"])
+def test_an_empty_time_dimension_gives_empty_bonuses(
+    name, normalization, make_vector_batch
+):
+    transform = _all_transforms(normalization=normalization)[name]
+    td = _timed_batch(make_vector_batch, (4, 0))
+    out = transform(td)
+    assert out["next", "intrinsic_reward"].shape == (4, 0, 1)
+    assert out["next", "reward"].shape == (4, 0, 1)
+    if normalization != "none":
+        assert transform.reward_rms.count < 1  # nothing counted
+
+
+_PER_TRANSITION_KEYS = [
+    *[(name, "reward") for name in ("vae", "icm", "elliptical", "e3b", "noveld")],
+    *[(name, "done") for name in ("elliptical", "e3b", "noveld")],
+    ("precomputed", "reward"),
+    ("precomputed", "rnd_reward"),
+]
+
+
+@pytest.mark.parametrize("name, key", _PER_TRANSITION_KEYS)
+def test_per_transition_entries_of_another_shape_are_refused(
+    name, key, make_vector_batch
+):
+    transform = _all_transforms()[name]
+    td = _timed_batch(make_vector_batch)
+    td["next", key] = torch.cat([td["next", key]] * 2, -1)  # [4, 3, 2]
+    original = td.clone()
+    with pytest.raises(ValueError) as info:
+        transform(td)
+    message = str(info.value)
+    for text in (repr(key), "(4, 3)", "(4, 3, 1)", "(4, 3, 2)"):
+        assert text in message, message
+    # Nothing was half-written, no episode advanced.
+    assert set(td.keys(True, True)) == set(original.keys(True, True))
+    memory = getattr(transform, "memory", getattr(transform, "visits", None))
+    assert memory is None or memory.env_shape is None

@@ -39,6 +39,6 @@ class PrecomputedBonusTransform(IntrinsicRewardTransform):
         self, tensordict: TensorDictBase, next_tensordict: TensorDictBase
     ) -> torch.Tensor:
         (bonus,) = self._observations(next_tensordict, "the 'next' tensordict")
-        if bonus.shape != next_tensordict.batch_size:
-            bonus = bonus.squeeze(-1)
-        return bonus.float()
+        batch_size = next_tensordict.batch_size
+        bonus = self._per_transition(self.in_keys[0], bonus, batch_size)
+        return bonus.reshape(batch_size).float()
