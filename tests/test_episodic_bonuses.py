@@ -370,3 +370,36 @@ def test_training_the_inverse_model_lowers_its_error():
     start = loss(batch)["loss_inverse"].item()
     end = _train(loss, model.parameters(), batch, "loss_inverse", 100)
     assert end < 0.2 * start
+
+
+# ============================================ the batched walk == the loop
+
+
+@pytest.mark.parametrize("time_dim", [0, 1, 2])
+@pytest.mark.parametrize("chunk", [4, 128])
+def test_the_elliptical_walk_equals_one_step_at_a_time(time_dim, chunk):
+    # Episodes ending mid-chunk, on a chunk's last step and on the batch's last
+    # step, over several chunks, from a memory already holding an episode.
+    torch.manual_seed(0)
+    dim, envs, steps = 6, (2, 3), 11
+    phi = torch.randn(*envs, steps, dim) * 2
+    done = torch.rand(*envs, steps) < 0.2
+    done[0, 0, [3, 7]] = True
+    done[1, 2, -1] = True
+    walked = EllipticalEpisodicMemory(dim, ridge=0.1)
+    walked.chunk = chunk
+    stepped = EllipticalEpisodicMemory(dim, ridge=0.1)
+    start = torch.randn(*envs, dim)
+    walked.step(start)
+    stepped.step(start)
+    loop = torch.stack(
+        [stepped.step(phi[..., t, :], done[..., t]) for t in range(steps)], -1
+    )
+    bonus = walked.walk(
+        phi.movedim(2, time_dim), done.movedim(2, time_dim), time_dim
+    ).movedim(time_dim, 2)
+    torch.testing.assert_close(bonus, loop, rtol=1e-9, atol=1e-12)
+    torch.testing.assert_close(walked.inv_cov, stepped.inv_cov, rtol=1e-9, atol=1e-12)
+    # And they go on equally.
+    more = torch.randn(*envs, dim)
+    torch.testing.assert_close(walked.step(more), stepped.step(more))
