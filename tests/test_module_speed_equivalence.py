@@ -20,7 +20,7 @@ from tensordict import TensorDict
 from torch import nn
 
 from torchrl_surprise import ICMLoss, StateVAE, VAELoss
-from torchrl_surprise.modules import ICMModel
+from torchrl_surprise.modules import E3BModel, ICMModel
 from torchrl_surprise.modules.vae import (
     MINIGRID_NUM_COLORS,
     MINIGRID_NUM_OBJECTS,
@@ -374,6 +374,37 @@ def test_onednn_linear_is_not_traced_by_torch_compile():
     x = torch.randn(128, 256)
     assert_close(compiled(x), F.linear(x, layer.weight, layer.bias))
     assert seen and not any("mkldnn" in target for target in seen)
+
+
+@pytest.mark.parametrize(
+    "build",
+    [
+        lambda **kw: StateVAE.for_minigrid(latent_dim=4, hidden_dim=64, **kw),
+        lambda **kw: StateVAE.for_vector(7, latent_dim=4, hidden_dim=64, **kw),
+        lambda **kw: ICMModel.for_minigrid(hidden_dim=64, **kw),
+        lambda **kw: ICMModel.for_vector(7, 7, hidden_dim=64, **kw),
+        lambda **kw: E3BModel.for_minigrid(embedding_dim=64, hidden_dim=64, **kw),
+    ],
+    ids=["vae_minigrid", "vae_vector", "icm_minigrid", "icm_vector", "e3b"],
+)
+def test_onednn_linear_is_opt_in_and_changes_no_parameter(build):
+    # The private oneDNN op runs only where asked; either way a model has the
+    # same parameters at a seed, and its state_dict loads into the other.
+    torch.manual_seed(5)
+    plain = build()
+    torch.manual_seed(5)
+    fast = build(onednn_linear=True)
+    linears = [m for m in plain.modules() if isinstance(m, nn.Linear)]
+    assert linears and not any(isinstance(m, OneDNNLinear) for m in linears)
+    fast_linears = [m for m in fast.modules() if isinstance(m, nn.Linear)]
+    assert len(fast_linears) == len(linears)
+    assert all(isinstance(m, OneDNNLinear) for m in fast_linears)
+    for (key, value), (fast_key, fast_value) in zip(
+        plain.state_dict().items(), fast.state_dict().items(), strict=True
+    ):
+        assert key == fast_key
+        assert_close(value, fast_value)
+    fast.load_state_dict(plain.state_dict())
 
 
 @pytest.mark.parametrize("channel, value", [(0, 11), (1, 6), (2, 3), (1, -1)])

@@ -31,6 +31,7 @@ class E3BModel(InverseDynamicsModel):
         discrete (bool): discrete actions (integers or one-hot) or continuous.
         hidden_dim (int): width of the inverse model.
         in_keys (sequence of NestedKey): observation keys the model reads.
+        onednn_linear (bool): run the layers on ``OneDNNLinear``.
 
     Examples:
         >>> import torch
@@ -56,6 +57,7 @@ class E3BModel(InverseDynamicsModel):
         embedding_dim: int = 1024,
         hidden_dim: int = 256,
         use_direction: bool = True,
+        onednn_linear: bool = False,
     ) -> E3BModel:
         """E3B on MiniGrid's symbolic grid (``"image"``, ``"direction"``).
 
@@ -71,13 +73,19 @@ class E3BModel(InverseDynamicsModel):
             embedding_dim (int): size of ``phi``.
             hidden_dim (int): width of the inverse model.
             use_direction (bool): also encode the direction.
+            onednn_linear (bool): run the linear layers on ``OneDNNLinear``.
         """
         return cls(
-            MiniGridEncoder(hidden_dim=embedding_dim, use_direction=use_direction),
+            MiniGridEncoder(
+                hidden_dim=embedding_dim,
+                use_direction=use_direction,
+                onednn_linear=onednn_linear,
+            ),
             num_actions,
             discrete=True,
             hidden_dim=hidden_dim,
             in_keys=["image", "direction"] if use_direction else ["image"],
+            onednn_linear=onednn_linear,
         )
 
     @classmethod
@@ -88,6 +96,7 @@ class E3BModel(InverseDynamicsModel):
         embedding_dim: int = 256,
         hidden_dim: int = 256,
         discrete: bool = False,
+        onednn_linear: bool = False,
     ) -> E3BModel:
         """E3B on flat float observations (continuous actions by default).
 
@@ -97,10 +106,14 @@ class E3BModel(InverseDynamicsModel):
             embedding_dim (int): size of ``phi``.
             hidden_dim (int): width of the inverse model.
             discrete (bool): discrete actions.
+            onednn_linear (bool): run the linear layers on ``OneDNNLinear``.
         """
         return cls(
-            VectorEncoder(obs_dim, hidden_dim=embedding_dim),
+            VectorEncoder(
+                obs_dim, hidden_dim=embedding_dim, onednn_linear=onednn_linear
+            ),
             action_dim,
             discrete=discrete,
             hidden_dim=hidden_dim,
+            onednn_linear=onednn_linear,
         )

@@ -10,8 +10,8 @@ from torch import nn
 
 from torchrl_surprise.modules.vae import (
     MiniGridEncoder,
-    OneDNNLinear,
     VectorEncoder,
+    linear_layer,
 )
 
 __all__ = ["ICMModel", "InverseDynamicsModel"]
@@ -33,6 +33,8 @@ class InverseDynamicsModel(nn.Module):
         discrete (bool): discrete actions (integers or one-hot) or continuous.
         hidden_dim (int): width of the inverse model.
         in_keys (sequence of NestedKey): observation keys the model reads.
+        onednn_linear (bool): run the model's layers on
+            :class:`~torchrl_surprise.modules.vae.OneDNNLinear`.
     """
 
     def __init__(
@@ -42,6 +44,7 @@ class InverseDynamicsModel(nn.Module):
         discrete: bool = True,
         hidden_dim: int = 256,
         in_keys: Sequence[NestedKey] = ("observation",),
+        onednn_linear: bool = False,
     ):
         super().__init__()
         if isinstance(in_keys, str):
@@ -52,9 +55,9 @@ class InverseDynamicsModel(nn.Module):
         self.discrete = discrete
         feat = encoder.out_features
         self.inverse_model = nn.Sequential(
-            OneDNNLinear(2 * feat, hidden_dim),
+            linear_layer(2 * feat, hidden_dim, onednn_linear),
             nn.ReLU(),
-            OneDNNLinear(hidden_dim, action_dim),
+            linear_layer(hidden_dim, action_dim, onednn_linear),
         )
 
     def encode_action(self, action: torch.Tensor) -> torch.Tensor:
@@ -134,6 +137,8 @@ class ICMModel(InverseDynamicsModel):
         discrete (bool): discrete actions (integers or one-hot) or continuous.
         hidden_dim (int): width of the inverse and forward models.
         in_keys (sequence of NestedKey): observation keys the model reads.
+        onednn_linear (bool): run the models' layers on
+            :class:`~torchrl_surprise.modules.vae.OneDNNLinear`.
 
     Examples:
         >>> import torch
@@ -152,18 +157,25 @@ class ICMModel(InverseDynamicsModel):
         discrete: bool = True,
         hidden_dim: int = 256,
         in_keys: Sequence[NestedKey] = ("observation",),
+        onednn_linear: bool = False,
     ):
-        super().__init__(encoder, action_dim, discrete, hidden_dim, in_keys)
+        super().__init__(
+            encoder, action_dim, discrete, hidden_dim, in_keys, onednn_linear
+        )
         feat = encoder.out_features
         self.forward_model = nn.Sequential(
-            OneDNNLinear(feat + action_dim, hidden_dim),
+            linear_layer(feat + action_dim, hidden_dim, onednn_linear),
             nn.ReLU(),
-            OneDNNLinear(hidden_dim, feat),
+            linear_layer(hidden_dim, feat, onednn_linear),
         )
 
     @classmethod
     def for_minigrid(
-        cls, num_actions: int = 7, hidden_dim: int = 256, use_direction: bool = True
+        cls,
+        num_actions: int = 7,
+        hidden_dim: int = 256,
+        use_direction: bool = True,
+        onednn_linear: bool = False,
     ) -> ICMModel:
         """ICM on MiniGrid's symbolic grid (``"image"``, ``"direction"``).
 
@@ -171,18 +183,28 @@ class ICMModel(InverseDynamicsModel):
             num_actions (int): number of discrete actions.
             hidden_dim (int): width of the encoder and the models.
             use_direction (bool): also encode the direction.
+            onednn_linear (bool): run the linear layers on ``OneDNNLinear``.
         """
         return cls(
-            MiniGridEncoder(hidden_dim=hidden_dim, use_direction=use_direction),
+            MiniGridEncoder(
+                hidden_dim=hidden_dim,
+                use_direction=use_direction,
+                onednn_linear=onednn_linear,
+            ),
             num_actions,
             discrete=True,
             hidden_dim=hidden_dim,
             in_keys=["image", "direction"] if use_direction else ["image"],
+            onednn_linear=onednn_linear,
         )
 
     @classmethod
     def for_vector(
-        cls, obs_dim: int, action_dim: int, hidden_dim: int = 256
+        cls,
+        obs_dim: int,
+        action_dim: int,
+        hidden_dim: int = 256,
+        onednn_linear: bool = False,
     ) -> ICMModel:
         """ICM on flat observations with continuous actions.
 
@@ -190,12 +212,14 @@ class ICMModel(InverseDynamicsModel):
             obs_dim (int): observation size.
             action_dim (int): action size.
             hidden_dim (int): width of the encoder and the models.
+            onednn_linear (bool): run the linear layers on ``OneDNNLinear``.
         """
         return cls(
-            VectorEncoder(obs_dim, hidden_dim=hidden_dim),
+            VectorEncoder(obs_dim, hidden_dim=hidden_dim, onednn_linear=onednn_linear),
             action_dim,
             discrete=False,
             hidden_dim=hidden_dim,
+            onednn_linear=onednn_linear,
         )
 
     def forward_error(

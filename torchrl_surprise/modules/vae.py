@@ -29,6 +29,7 @@ __all__ = [
     "MiniGridEncoder",
     "OneDNNLinear",
     "StateVAE",
+    "linear_layer",
     "VectorEncoder",
     "kl_to_standard_normal",
     "MINIGRID_NUM_OBJECTS",
@@ -155,8 +156,10 @@ class OneDNNLinear(nn.Linear):
     Same parameters, initialisation and state_dict as ``nn.Linear``; results
     equal up to float32 rounding (another summation order). Small products,
     other dtypes or devices and code traced by torch.compile go to
-    ``F.linear``. Not twice differentiable on the oneDNN
-    path.
+    ``F.linear``. Not twice differentiable on the oneDNN path. It calls a
+    private PyTorch op (``torch.ops.mkldnn._linear_pointwise``), so the
+    networks use it only when asked (``onednn_linear=True``, see
+    :func:`linear_layer`).
     """
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -182,6 +185,23 @@ class OneDNNLinear(nn.Linear):
         else:
             out = _ONEDNN_LINEAR(x2d, weight, bias, "none", [], "")
         return out.reshape(*x.shape[:-1], self.out_features)
+
+
+def linear_layer(
+    in_features: int, out_features: int, onednn_linear: bool = False
+) -> nn.Linear:
+    """``nn.Linear``, or :class:`OneDNNLinear` where ``onednn_linear`` asks for it.
+
+    The networks of this package take ``onednn_linear`` (default ``False``):
+    the two layers have the same parameters and state_dict, so a checkpoint
+    loads either way.
+
+    Examples:
+        >>> type(linear_layer(4, 2)).__name__, type(linear_layer(4, 2, True)).__name__
+        ('Linear', 'OneDNNLinear')
+    """
+    layer = OneDNNLinear if onednn_linear else nn.Linear
+    return layer(in_features, out_features)
 
 
 def _check_ids(ids: torch.Tensor, limits: Sequence[int]) -> bool:
@@ -245,6 +265,7 @@ class MiniGridEncoder(nn.Module):
         use_direction (bool): also embed the agent's direction (an integer in
             ``[0, 4)``); then ``forward`` takes ``(image, direction)``.
         grid_size (int): side of the egocentric view (7 in MiniGrid).
+        onednn_linear (bool): run the hidden layer on :class:`OneDNNLinear`.
 
     Examples:
         >>> import torch
@@ -255,7 +276,11 @@ class MiniGridEncoder(nn.Module):
     """
 
     def __init__(
-        self, hidden_dim: int = 256, use_direction: bool = True, grid_size: int = 7
+        self,
+        hidden_dim: int = 256,
+        use_direction: bool = True,
+        grid_size: int = 7,
+        onednn_linear: bool = False,
     ):
         super().__init__()
         self.grid_size = grid_size
@@ -278,7 +303,7 @@ class MiniGridEncoder(nn.Module):
         nn.init.normal_(self.embedding.weight, std=1.0 / math.sqrt(3 * grid_size**2))
         self.bias = nn.Parameter(torch.zeros(hidden_dim))
         self.hidden = nn.Sequential(
-            nn.ReLU(), OneDNNLinear(hidden_dim, hidden_dim), nn.ReLU()
+            nn.ReLU(), linear_layer(hidden_dim, hidden_dim, onednn_linear), nn.ReLU()
         )
 
     def _indices(
@@ -344,6 +369,7 @@ class MiniGridDecoder(nn.Module):
         hidden_dim (int): hidden width.
         use_direction (bool): also reconstruct the direction.
         grid_size (int): side of the egocentric view.
+        onednn_linear (bool): run the layers on :class:`OneDNNLinear`.
 
     Examples:
         >>> import torch
@@ -359,6 +385,7 @@ class MiniGridDecoder(nn.Module):
         hidden_dim: int = 256,
         use_direction: bool = True,
         grid_size: int = 7,
+        onednn_linear: bool = False,
     ):
         super().__init__()
         self.grid_size = grid_size
@@ -367,11 +394,11 @@ class MiniGridDecoder(nn.Module):
         out = grid_size * grid_size * sum(self._sizes)
         out += MINIGRID_NUM_DIRECTIONS if use_direction else 0
         self.net = nn.Sequential(
-            OneDNNLinear(latent_dim, hidden_dim),
+            linear_layer(latent_dim, hidden_dim, onednn_linear),
             nn.ReLU(),
-            OneDNNLinear(hidden_dim, hidden_dim),
+            linear_layer(hidden_dim, hidden_dim, onednn_linear),
             nn.ReLU(),
-            OneDNNLinear(hidden_dim, out),
+            linear_layer(hidden_dim, out, onednn_linear),
         )
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
@@ -418,6 +445,7 @@ class VectorEncoder(nn.Module):
         obs_dim (int): observation size.
         hidden_dim (int): hidden width.
         num_layers (int): hidden layers.
+        onednn_linear (bool): run the layers on :class:`OneDNNLinear`.
 
     Examples:
         >>> import torch
@@ -425,13 +453,19 @@ class VectorEncoder(nn.Module):
         torch.Size([3, 64])
     """
 
-    def __init__(self, obs_dim: int, hidden_dim: int = 256, num_layers: int = 2):
+    def __init__(
+        self,
+        obs_dim: int,
+        hidden_dim: int = 256,
+        num_layers: int = 2,
+        onednn_linear: bool = False,
+    ):
         super().__init__()
         self.obs_dim = obs_dim
         self.out_features = hidden_dim
         layers, width = [], obs_dim
         for _ in range(num_layers):
-            layers += [OneDNNLinear(width, hidden_dim), nn.ReLU()]
+            layers += [linear_layer(width, hidden_dim, onednn_linear), nn.ReLU()]
             width = hidden_dim
         self.net = nn.Sequential(*layers)
 
@@ -451,6 +485,7 @@ class GaussianVectorDecoder(nn.Module):
         hidden_dim (int): hidden width.
         min_log_scale (float): lower bound of the learned log standard deviation,
             which keeps the likelihood finite when a dimension is constant.
+        onednn_linear (bool): run the layers on :class:`OneDNNLinear`.
 
     Examples:
         >>> import torch
@@ -465,14 +500,15 @@ class GaussianVectorDecoder(nn.Module):
         obs_dim: int,
         hidden_dim: int = 256,
         min_log_scale: float = -5.0,
+        onednn_linear: bool = False,
     ):
         super().__init__()
         self.net = nn.Sequential(
-            OneDNNLinear(latent_dim, hidden_dim),
+            linear_layer(latent_dim, hidden_dim, onednn_linear),
             nn.ReLU(),
-            OneDNNLinear(hidden_dim, hidden_dim),
+            linear_layer(hidden_dim, hidden_dim, onednn_linear),
             nn.ReLU(),
-            OneDNNLinear(hidden_dim, obs_dim),
+            linear_layer(hidden_dim, obs_dim, onednn_linear),
         )
         self.log_scale = nn.Parameter(torch.zeros(obs_dim))
         self.min_log_scale = min_log_scale
@@ -504,6 +540,10 @@ class StateVAE(nn.Module):
         in_keys (sequence of NestedKey): the observation keys the VAE reads, in
             the order the encoder takes them. Transforms and losses default to them.
         min_scale (float): floor of the posterior standard deviation.
+        onednn_linear (bool): run the posterior head on :class:`OneDNNLinear`
+            (the builders pass it to the encoder and decoder too). Off by
+            default: it calls a private PyTorch op, for large float32 layers
+            on x86-64 CPUs only.
 
     Examples:
         >>> import torch
@@ -522,6 +562,7 @@ class StateVAE(nn.Module):
         latent_dim: int,
         in_keys: Sequence[NestedKey] = ("observation",),
         min_scale: float = 1e-4,
+        onednn_linear: bool = False,
     ):
         super().__init__()
         if isinstance(in_keys, str):
@@ -531,7 +572,7 @@ class StateVAE(nn.Module):
         self.decoder = decoder
         self.latent_dim = latent_dim
         self.min_scale = min_scale
-        self.head = OneDNNLinear(encoder.out_features, 2 * latent_dim)
+        self.head = linear_layer(encoder.out_features, 2 * latent_dim, onednn_linear)
         # softplus(bias) + min_scale == 1 at a zero pre-activation.
         self._scale_bias = math.log(math.expm1(1.0 - min_scale))
 
@@ -542,6 +583,7 @@ class StateVAE(nn.Module):
         hidden_dim: int = 256,
         use_direction: bool = True,
         in_keys: Sequence[NestedKey] | None = None,
+        onednn_linear: bool = False,
     ) -> StateVAE:
         """A VAE for MiniGrid's symbolic grid (``"image"``) and ``"direction"``.
 
@@ -551,6 +593,7 @@ class StateVAE(nn.Module):
             use_direction (bool): also encode and reconstruct the direction.
             in_keys (sequence of NestedKey, optional): observation keys; defaults
                 to ``["image", "direction"]`` (``["image"]`` without direction).
+            onednn_linear (bool): run the linear layers on :class:`OneDNNLinear`.
 
         Examples:
             >>> import torch
@@ -564,12 +607,20 @@ class StateVAE(nn.Module):
         if in_keys is None:
             in_keys = ["image", "direction"] if use_direction else ["image"]
         return cls(
-            MiniGridEncoder(hidden_dim=hidden_dim, use_direction=use_direction),
+            MiniGridEncoder(
+                hidden_dim=hidden_dim,
+                use_direction=use_direction,
+                onednn_linear=onednn_linear,
+            ),
             MiniGridDecoder(
-                latent_dim, hidden_dim=hidden_dim, use_direction=use_direction
+                latent_dim,
+                hidden_dim=hidden_dim,
+                use_direction=use_direction,
+                onednn_linear=onednn_linear,
             ),
             latent_dim,
             in_keys=in_keys,
+            onednn_linear=onednn_linear,
         )
 
     @classmethod
@@ -579,6 +630,7 @@ class StateVAE(nn.Module):
         latent_dim: int = 16,
         hidden_dim: int = 256,
         in_keys: Sequence[NestedKey] = ("observation",),
+        onednn_linear: bool = False,
     ) -> StateVAE:
         """A VAE for flat float observations with a Gaussian decoder.
 
@@ -587,12 +639,16 @@ class StateVAE(nn.Module):
             latent_dim (int): size of ``z``.
             hidden_dim (int): width of the encoder and decoder.
             in_keys (sequence of NestedKey): observation key(s).
+            onednn_linear (bool): run the linear layers on :class:`OneDNNLinear`.
         """
         return cls(
-            VectorEncoder(obs_dim, hidden_dim=hidden_dim),
-            GaussianVectorDecoder(latent_dim, obs_dim, hidden_dim=hidden_dim),
+            VectorEncoder(obs_dim, hidden_dim=hidden_dim, onednn_linear=onednn_linear),
+            GaussianVectorDecoder(
+                latent_dim, obs_dim, hidden_dim=hidden_dim, onednn_linear=onednn_linear
+            ),
             latent_dim,
             in_keys=list(in_keys),
+            onednn_linear=onednn_linear,
         )
 
     def posterior(
