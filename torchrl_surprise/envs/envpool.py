@@ -76,6 +76,7 @@ from __future__ import annotations
 
 import difflib
 import functools
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -301,17 +302,22 @@ class EnvPoolMiniGridEnv(EnvBase):
         )
         self._seed = seed
         n = self.num_envs
-        # Envs that ended an episode and must be reset before their next step; a
-        # new pool's envs have not been reset yet.
-        self._needs_reset = np.ones(n, dtype=bool)
-        self._elapsed = np.zeros(n, dtype=np.int64)
+        # What changes at each step lives in a plain namespace: setting an
+        # attribute of the env itself goes through nn.Module.__setattr__.
+        self._rt = SimpleNamespace(
+            # Envs that ended an episode and must be reset before their next
+            # step; a new pool's envs have not been reset yet.
+            needs_reset=np.ones(n, dtype=bool),
+            elapsed=np.zeros(n, dtype=np.int64),
+            last_obs=None,  # (image, direction) of every env
+            # Replay log since the pool was built: action rows (one byte per
+            # env, _NOT_STEPPED for an env left out) and resets as (rows before,
+            # env ids).
+            log_chunks=[],
+            log_rows=0,
+            log_resets=[],
+        )
         self._all_ids = np.arange(n, dtype=np.int32)
-        self._last_obs: tuple[torch.Tensor, torch.Tensor] | None = None
-        # Replay log since the pool was built: action rows (one byte per env,
-        # _NOT_STEPPED for an env left out) and resets as (rows before, env ids).
-        self._log_chunks: list[np.ndarray] = []
-        self._log_rows = 0
-        self._log_resets: list[tuple[int, np.ndarray]] = []
 
     @property
     def pool(self) -> Any:
@@ -333,9 +339,8 @@ class EnvPoolMiniGridEnv(EnvBase):
             image=UnboundedDiscrete(shape=(*b, *view), dtype=torch.uint8),
             shape=b,
         )
-        self.action_spec = Categorical(
-            int(self._pool.action_space.n), shape=b, dtype=torch.int64
-        )
+        self._num_actions = int(self._pool.action_space.n)
+        self.action_spec = Categorical(self._num_actions, shape=b, dtype=torch.int64)
         self.reward_spec = Unbounded(shape=(*b, 1), dtype=torch.float32)
         self.done_spec = Composite(
             done=Categorical(2, shape=(*b, 1), dtype=torch.bool),
@@ -346,17 +351,17 @@ class EnvPoolMiniGridEnv(EnvBase):
 
     # Log ------------------------------------------------------------------------
     def _log_step(self, actions: np.ndarray, ids: np.ndarray | None) -> None:
-        row = self._log_rows % _LOG_CHUNK
+        row = self._rt.log_rows % _LOG_CHUNK
         if row == 0:
-            self._log_chunks.append(
+            self._rt.log_chunks.append(
                 np.full((_LOG_CHUNK, self.num_envs), _NOT_STEPPED, dtype=np.uint8)
             )
-        target = self._log_chunks[-1][row]
+        target = self._rt.log_chunks[-1][row]
         if ids is None:
             target[:] = actions
         else:
             target[ids] = actions
-        self._log_rows += 1
+        self._rt.log_rows += 1
 
     # TorchRL API ----------------------------------------------------------------
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
@@ -368,17 +373,16 @@ class EnvPoolMiniGridEnv(EnvBase):
             ids = self._all_ids[partial.view(-1).numpy(force=True)]
             actions = actions[ids]
         stepped = self._all_ids if ids is None else ids
-        if self._needs_reset[stepped].any():
-            pending = stepped[self._needs_reset[stepped]].tolist()
+        if self._rt.needs_reset[stepped].any():
+            pending = stepped[self._rt.needs_reset[stepped]].tolist()
             raise RuntimeError(
                 f"envs {pending} of {self.env_name!r} ended an episode and were not "
                 "reset: reset them first (env.reset with a '_reset' mask; "
                 "env.rollout and the collectors do it)."
             )
-        if ((actions < 0) | (actions >= self.action_spec.space.n)).any():
+        if ((actions < 0) | (actions >= self._num_actions)).any():
             raise ValueError(
-                f"actions must be in [0, {self.action_spec.space.n}), got "
-                f"{actions.tolist()}."
+                f"actions must be in [0, {self._num_actions}), got {actions.tolist()}."
             )
         obs, reward, terminated, truncated, info = self._pool.step(actions, ids)
         self._log_step(actions, ids)
@@ -388,22 +392,22 @@ class EnvPoolMiniGridEnv(EnvBase):
         image = torch.from_numpy(obs["image"])
         direction = torch.from_numpy(obs["direction"]).to(torch.int64)
         if ids is None:
-            self._elapsed = elapsed.astype(np.int64)
-            self._needs_reset = done.copy()  # the output keeps done
-            self._last_obs = (image, direction)
+            self._rt.elapsed[:] = elapsed
+            self._rt.needs_reset[:] = done
+            self._rt.last_obs = (image, direction)
             reward_t = torch.from_numpy(reward)
             out_done = torch.from_numpy(done)
             out_term = torch.from_numpy(terminated)
             out_trunc = torch.from_numpy(truncated)
         else:
-            self._elapsed[ids] = elapsed
-            self._needs_reset[ids] = done
-            last_image, last_direction = self._last_obs
+            self._rt.elapsed[ids] = elapsed
+            self._rt.needs_reset[ids] = done
+            last_image, last_direction = self._rt.last_obs
             image = _scatter(last_image, ids, image)
             direction = _scatter(last_direction, ids, direction)
             # Envs left out of the step keep their observation, reward 0 and done
             # flags (they are done: env.rollout leaves out finished envs).
-            self._last_obs = (image, direction)
+            self._rt.last_obs = (image, direction)
             reward_t = _scatter(torch.zeros(self.num_envs), ids, reward)
             left_out = np.ones(self.num_envs, dtype=bool)
             left_out[ids] = False
@@ -414,7 +418,8 @@ class EnvPoolMiniGridEnv(EnvBase):
             out_term = _scatter(_or_false(prev_term, self.num_envs), ids, terminated)
             out_trunc = _scatter(_or_false(prev_trunc, self.num_envs), ids, truncated)
         shape = (self.num_envs, 1)
-        next_td = TensorDict(
+        # Shapes and dtypes are right by construction: skip the checks.
+        next_td = TensorDict._new_unsafe(
             {
                 "image": image,
                 "direction": direction,
@@ -460,7 +465,7 @@ class EnvPoolMiniGridEnv(EnvBase):
         mask = None if tensordict is None else tensordict.get("_reset", None)
         if mask is not None:
             mask = mask.reshape(self.num_envs).numpy(force=True)
-        if mask is None or mask.all() or self._last_obs is None:
+        if mask is None or mask.all() or self._rt.last_obs is None:
             ids = self._all_ids
             obs, _ = self._pool.reset()
         else:
@@ -474,15 +479,15 @@ class EnvPoolMiniGridEnv(EnvBase):
         if len(ids) == self.num_envs:
             image, direction = image_rows, direction_rows
         else:
-            image, direction = self._last_obs
+            image, direction = self._rt.last_obs
             if len(ids):
                 image = _scatter(image, ids, image_rows)
                 direction = _scatter(direction, ids, direction_rows)
         if len(ids):
-            self._log_resets.append((self._log_rows, ids.copy()))
-        self._needs_reset[ids] = False
-        self._elapsed[ids] = 0
-        self._last_obs = (image, direction)
+            self._rt.log_resets.append((self._rt.log_rows, ids.copy()))
+        self._rt.needs_reset[ids] = False
+        self._rt.elapsed[ids] = 0
+        self._rt.last_obs = (image, direction)
         false = torch.zeros(self.num_envs, 1, dtype=torch.bool)
         out = TensorDict(
             {
@@ -572,8 +577,8 @@ class EnvPoolMiniGridEnv(EnvBase):
             ...             other.step(forward.clone())["next", "image"])
             True
         """
-        if self._log_rows:
-            actions = np.concatenate(self._log_chunks)[: self._log_rows].copy()
+        if self._rt.log_rows:
+            actions = np.concatenate(self._rt.log_chunks)[: self._rt.log_rows].copy()
         else:
             actions = np.zeros((0, self.num_envs), dtype=np.uint8)
         return {
@@ -581,9 +586,9 @@ class EnvPoolMiniGridEnv(EnvBase):
             "num_envs": self.num_envs,
             "task_kwargs": dict(self._task_kwargs),
             "seed": self._seed,
-            "steps": self._log_rows,
+            "steps": self._rt.log_rows,
             "actions": actions,
-            "resets": [(t, ids.copy()) for t, ids in self._log_resets],
+            "resets": [(t, ids.copy()) for t, ids in self._rt.log_resets],
         }
 
     def load_runtime_state(self, state: dict[str, Any]) -> None:
@@ -642,7 +647,7 @@ class EnvPoolMiniGridEnv(EnvBase):
 
     def elapsed_steps(self) -> np.ndarray:
         """Steps taken in each env's current episode."""
-        return self._elapsed.copy()
+        return self._rt.elapsed.copy()
 
     def minigrid_envs(self, env_ids: list[int] | None = None) -> list[Any]:
         """The current state of ``env_ids`` rebuilt in minigrid envs.
@@ -660,7 +665,7 @@ class EnvPoolMiniGridEnv(EnvBase):
         ids = self._all_ids.tolist() if env_ids is None else list(env_ids)
         return [
             minigrid_env_from_envpool_state(
-                state, self.env_name, step_count=int(self._elapsed[i])
+                state, self.env_name, step_count=int(self._rt.elapsed[i])
             )
             for i, state in zip(ids, self.debug_states(ids))
         ]
