@@ -4,7 +4,8 @@ For each task, in one process and interleaved over rounds (so that all setups se
 the same machine load): a raw gymnasium loop of one env (random actions, reset at
 episode ends), ``make_minigrid_env(16, backend="gymnasium")`` and
 ``make_minigrid_env(16, backend="envpool")`` with 1 and 2 threads (both through
-``env.rollout`` with random actions, TorchRL resetting finished envs). Steps are
+``env.rollout`` with random actions, TorchRL resetting finished envs), and, as
+the ceiling, envpool's own loop of 16 envs on 1 thread (its autoreset, no TorchRL). Steps are
 env steps (16 per batched step). CPU time is ``time.process_time`` (all threads
 of this process), wall time ``time.perf_counter``; the table shows the medians
 over rounds and the ratios of the medians to the raw loop's.
@@ -48,6 +49,28 @@ def raw_loop(task: str, steps: int) -> Callable[[], int]:
     return run
 
 
+def raw_envpool(task: str, steps: int) -> Callable[[], int]:
+    """envpool's own loop (its autoreset), the ceiling of the TorchRL env."""
+    import envpool
+
+    from torchrl_surprise.envs.envpool import envpool_minigrid_task
+
+    name, kwargs = envpool_minigrid_task(task)
+    pool = envpool.make(
+        name, env_type="gymnasium", num_envs=NUM_ENVS, seed=0, num_threads=1, **kwargs
+    )
+    pool.reset()
+    rng = np.random.default_rng(0)
+    batched_steps = max(1, steps // NUM_ENVS)
+
+    def run() -> int:
+        for actions in rng.integers(7, size=(batched_steps, NUM_ENVS)):
+            pool.step(actions)
+        return batched_steps * NUM_ENVS
+
+    return run
+
+
 def torchrl_rollout(task: str, steps: int, **kwargs) -> Callable[[], int]:
     env = make_minigrid_env(task, num_envs=NUM_ENVS, seed=0, **kwargs)
     batched_steps = max(1, steps // NUM_ENVS)
@@ -86,6 +109,7 @@ def main() -> None:
         setups = {
             "raw gymnasium, 1 env": raw_loop(task, args.steps // 4),
             f"gymnasium, {NUM_ENVS} envs": torchrl_rollout(task, args.steps // 2),
+            f"raw envpool, {NUM_ENVS} envs": raw_envpool(task, args.steps * 2),
             f"envpool, {NUM_ENVS} envs, 1 thread": torchrl_rollout(
                 task, args.steps, backend="envpool", num_threads=1
             ),

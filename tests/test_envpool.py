@@ -593,3 +593,36 @@ def test_reseed_barrier_same_in_uninterrupted_and_resumed_run():
     uninterrupted.rollout(50)
     resumed = EnvPoolMiniGridEnv(DOORKEY, num_envs=2, seed=0)
     assert torch.equal(after_barrier(uninterrupted), after_barrier(resumed))
+
+
+def test_resumable_collector_continues_exactly():
+    """torchrl_surprise's ResumableCollector saves and replays the envpool env."""
+    from torchrl.envs.utils import RandomPolicy
+
+    from torchrl_surprise.collectors import ResumableCollector
+
+    def collector(state=None):
+        env = make_minigrid_env(
+            MULTIROOM_N3_S4, num_envs=4, seed=0, backend="envpool", num_threads=1
+        )
+        c = ResumableCollector(
+            env, RandomPolicy(env.action_spec), frames_per_batch=128, total_frames=1024
+        )
+        if state is not None:
+            c.load_state_dict(state)
+        return c
+
+    torch.manual_seed(0)
+    first = collector()
+    it = iter(first)
+    for _ in range(3):  # 96 steps per env: episode ends and partial resets
+        next(it)
+    saved, rng = first.state_dict(), torch.get_rng_state()
+    expected = [next(it) for _ in range(2)]
+    resumed = collector(saved)
+    torch.set_rng_state(rng)
+    it = iter(resumed)
+    for batch, want in zip([next(it) for _ in range(2)], expected):
+        for key in ("image", ("next", "image"), ("next", "reward"), ("next", "done")):
+            assert torch.equal(batch[key], want[key]), key
+    assert torch.cat([b["next", "done"] for b in expected], 1).any()
