@@ -241,11 +241,6 @@ def make_minigrid_env(
         >>> bool(td["next", "truncated"].any())  # 60-step episodes were auto-reset
         True
         >>> env.close()
-        >>> env = make_minigrid_env("MiniGrid-MultiRoom-N3-S4-v0", num_envs=4,
-        ...                         seed=0, backend="envpool")
-        >>> env.rollout(100, break_when_any_done=False)["image"].shape
-        torch.Size([4, 100, 7, 7, 3])
-        >>> env.close()
     """
     if backend not in MINIGRID_BACKENDS:
         raise ValueError(
