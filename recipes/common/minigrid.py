@@ -53,20 +53,18 @@ from torchrl_surprise.transforms.stochasticity import (
     StochasticityTransform,
 )
 
-from .run import RESUME_MODES, evaluate_episodes
+from .run import RESUME_MODES
 
 __all__ = [
     "BONUSES",
     "VAE_VARIANTS",
     "vae_variant_kwargs",
     "MiniGridConvTrunk",
-    "EVAL_SEED_OFFSET",
     "bonus_update_steps",
     "check_config",
     "check_workers",
     "documented_results",
     "documented_results_message",
-    "evaluate",
     "init_rl_starter",
     "load_bonus_model",
     "make_actor_critic",
@@ -453,10 +451,6 @@ def make_collector(env, policy, cfg, total_frames: int):
     )
 
 
-EVAL_SEED_OFFSET = 10_000
-"""The evaluation envs are seeded ``seed + EVAL_SEED_OFFSET``: other episodes."""
-
-
 def bonus_update_steps(cfg, iteration: int) -> int:
     """The bonus model's gradient steps after rollout ``iteration`` (from 0).
 
@@ -532,21 +526,6 @@ def rollout_metrics(stats, data, bonus_transform=None, bonus_td=None) -> dict:
         for key, value in bonus_td.items():
             metrics[f"bonus/{key}"] = value.mean().item()
     return metrics
-
-
-def evaluate(
-    env, policy, episodes: int, *, seed: int, deterministic: bool
-) -> tuple[float, float]:
-    """Mean extrinsic return and success rate over ``episodes`` finished episodes.
-
-    ``env`` is reseeded with ``seed`` first, so every evaluation sees the same
-    episodes (:func:`~common.run.evaluate_episodes`).
-    """
-    returns = evaluate_episodes(
-        env, policy, episodes, seed=seed, deterministic=deterministic
-    )
-    mean = sum(returns) / max(len(returns), 1)
-    return mean, sum(r > 0 for r in returns) / max(len(returns), 1)
 
 
 # The attribute of each bonus transform that holds its model.

@@ -1,4 +1,10 @@
-"""Run support shared by the recipes: seeding, checkpoints, episode stats, curves."""
+"""Run support shared by the recipes: seeding, checkpoints, episode stats, curves.
+
+A recipe's ``main.py`` holds its algorithm; what every run does around it is
+:class:`TrainingRun`: prepare the run directory (resume checks, seeds), restore a
+checkpoint, log, show progress, save periodically and on a stop signal, and end
+with a final checkpoint, a learning curve and a summary.
+"""
 
 from __future__ import annotations
 
@@ -12,48 +18,41 @@ import random
 import shutil
 import signal
 import sys
+import time
 import types
 from collections import deque
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any, NamedTuple, NoReturn
 
 import numpy as np
 import torch
-import torch.utils.deterministic
 from tensordict import TensorDictBase
-
-
-def _pickle_module_by_name(module: types.ModuleType):
-    return importlib.import_module, (module.__name__,)
-
-
-# Hydra's joblib and submitit launchers send the task function to their workers
-# with cloudpickle, which pickles a script's function by value together with the
-# torch submodules its code names; torch.utils.deterministic is a ModuleType
-# subclass that cloudpickle cannot pickle, so it is pickled by name instead.
-copyreg.pickle(type(torch.utils.deterministic), _pickle_module_by_name)
 
 __all__ = [
     "BONUS_SECTIONS",
     "RESUMABLE_CHANGES",
     "RESUME_MODES",
     "Checkpointer",
+    "EVAL_SEED_OFFSET",
     "EpisodeStats",
-    "Progress",
+    "Evaluation",
     "RNGState",
+    "RunCounters",
     "StopSignal",
+    "TrainingRun",
     "config_differences",
     "unused_bonus_sections",
     "find_scalar_log",
-    "plot_scalar_logs",
+    "plot_run_curves",
     "resume_command",
     "truncate_scalar_logs",
-    "evaluate_episodes",
+    "evaluate",
     "get_run_logger",
     "get_rng_state",
     "load_checkpoint",
     "prepare_run",
+    "register_sweep_pickling",
     "plot_learning_curves",
     "read_scalar_csv",
     "save_checkpoint",
@@ -306,13 +305,16 @@ def prepare_run(cfg, run_dir: str | os.PathLike) -> tuple[Path, dict[str, Any] |
     return ckpt_path, ckpt
 
 
-class Progress:
-    """Counters of a run (frames, and the next frame to evaluate or checkpoint at).
+class RunCounters:
+    """The counters a run checkpoints: frames done, and the frame of the next
+    evaluation or checkpoint (``next_eval``, ``next_ckpt``), or any other.
 
     Examples:
-        >>> p = Progress(frames=0, next_eval=100)
-        >>> p.frames += 64
-        >>> Progress(frames=0, next_eval=0).load_state_dict(p.state_dict())
+        >>> counters = RunCounters(frames=0, next_ckpt=100)
+        >>> counters.frames += 64
+        >>> other = RunCounters(frames=0, next_ckpt=0)
+        >>> other.load_state_dict(counters.state_dict()); other.frames
+        64
     """
 
     def __init__(self, **counters: int):
@@ -339,7 +341,7 @@ class Checkpointer:
     """One mapping of what a run saves, used both to save and to load.
 
     Every value is an object with ``state_dict()`` / ``load_state_dict()``
-    (modules, optimisers, transforms, collectors, :class:`Progress`,
+    (modules, optimisers, transforms, collectors, :class:`RunCounters`,
     :class:`RNGState`); ``None`` entries are skipped. Loading follows the mapping's
     order, so put :class:`RNGState` last: building the run consumed random numbers.
 
@@ -354,10 +356,10 @@ class Checkpointer:
 
     Examples:
         >>> import tempfile, os
-        >>> net = torch.nn.Linear(2, 2); progress = Progress(frames=128)
+        >>> net = torch.nn.Linear(2, 2); progress = RunCounters(frames=128)
         >>> path = os.path.join(tempfile.mkdtemp(), "ckpt.pt")
         >>> Checkpointer(path, {"net": net, "progress": progress}, config={}).save()
-        >>> other = Progress(frames=0)
+        >>> other = RunCounters(frames=0)
         >>> Checkpointer(path, {"net": torch.nn.Linear(2, 2), "progress": other},
         ...              config={}).load(load_checkpoint(path))
         >>> other.frames
@@ -392,7 +394,7 @@ class Checkpointer:
         save_checkpoint(self.path, state)
 
     def save_every(self, interval_frames: int) -> None:
-        """Saves when the run's :class:`Progress` has passed ``next_ckpt`` frames,
+        """Saves when the run's :class:`RunCounters` has passed ``next_ckpt`` frames,
         and moves ``next_ckpt`` on by ``interval_frames``."""
         progress = self.components["progress"]
         if progress.frames >= progress.next_ckpt:
@@ -420,7 +422,7 @@ class StopSignal:
     """Turns SIGINT and SIGTERM into a request to stop after the current update.
 
     A training loop checks it once per iteration; when set, it saves a checkpoint
-    and exits (a cluster scheduler sends SIGTERM before preemption; Ctrl-C sends
+    and exits (:meth:`TrainingRun.after_update`) (a cluster scheduler sends SIGTERM before preemption; Ctrl-C sends
     SIGINT). A second SIGINT interrupts at once.
 
     Examples:
@@ -447,25 +449,6 @@ class StopSignal:
     @property
     def name(self) -> str:
         return signal.Signals(self.received).name if self.received else ""
-
-    def save_and_exit(
-        self, checkpointer: Checkpointer, frames: int, run_dir, *closers
-    ) -> None:
-        """If a signal came: save, run ``closers`` (progress bar, collector), print
-        one line on how to resume, and exit with status ``128 + signal``.
-
-        In a launcher's worker process (the local joblib launcher), the exit is
-        immediate (:func:`os._exit`), so that the worker starts no queued job."""
-        if not self:
-            return
-        checkpointer.save()
-        for close in closers:
-            close()
-        print(
-            f"{self.name}: stopped at {frames} frames, checkpoint saved. "
-            f"Resume with: {resume_command(run_dir)}"
-        )
-        _exit_process(128 + self.received)
 
     def restore(self) -> None:
         """Puts back the handlers that were installed before."""
@@ -505,6 +488,251 @@ def resume_command(run_dir: str | os.PathLike) -> str:
         overrides = []
     args = [sys.argv[0], *overrides, f"hydra.run.dir={run_dir}", "resume=true"]
     return "python " + " ".join(args)
+
+
+def _pickle_module_by_name(module: types.ModuleType):
+    return importlib.import_module, (module.__name__,)
+
+
+def register_sweep_pickling(*modules: types.ModuleType) -> None:
+    """Lets Hydra's sweep launchers send a recipe's task function to their workers.
+
+    The joblib, submitit and Ray launchers pickle the task function with
+    cloudpickle, which pickles a script's function by value together with what
+    its code names:
+
+    - ``modules`` (the recipe's ``utils``, ``common``) travel by value as well
+      (``cloudpickle.register_pickle_by_value``): the workers cannot import them;
+    - the torch submodules the code names, among them ``torch.utils.deterministic``
+      (a ``ModuleType`` subclass cloudpickle cannot pickle), are pickled by name:
+      a ``copyreg`` entry for that type, for the whole process.
+
+    A recipe calls this once, at import, before Hydra launches anything.
+
+    Examples:
+        >>> import cloudpickle, torch.utils.deterministic
+        >>> register_sweep_pickling()
+        >>> cloudpickle.loads(cloudpickle.dumps(torch.utils.deterministic)).__name__
+        'torch.utils.deterministic'
+    """
+    import cloudpickle
+    import torch.utils.deterministic
+
+    for module in modules:
+        cloudpickle.register_pickle_by_value(module)
+    copyreg.pickle(type(torch.utils.deterministic), _pickle_module_by_name)
+
+
+_RECIPES_DIR = str(Path(__file__).resolve().parents[1])
+
+
+class TrainingRun:
+    """What a recipe's run does around its algorithm, in the order it meets it.
+
+    1. ``TrainingRun(cfg, name)``: :func:`prepare_run` (threads, seeds, resume
+       checks, the checkpoint to resume from); :meth:`nothing_to_do` says
+       whether that checkpoint already holds the whole budget.
+    2. :meth:`restore` with what a checkpoint holds, once the run is built: loads
+       the checkpoint into it, opens the logger (:attr:`logger`), shows a progress
+       bar (:attr:`progress_bar`) and turns SIGINT / SIGTERM into a request to
+       stop (:class:`StopSignal`).
+    3. :meth:`after_update` once per collected batch, after its evaluation: the
+       progress bar, the periodic checkpoint every ``checkpoint.interval_frames``
+       (kept under ``checkpoints/`` with ``checkpoint.keep``), and on a stop
+       request a checkpoint, one line on how to resume and the exit.
+    4. :meth:`finish`: the final checkpoint, the learning curve read back from the
+       logs, and the summary.
+
+    Args:
+        cfg: the run's Hydra config (``seed``, ``resume``, ``torch_threads``,
+            ``collector.total_frames``, ``logger.*``, ``checkpoint.*``).
+        name (str): the learner (``"a2c"``, ``"ddpg"``): the logger's experiment.
+        run_dir: the run directory; default: Hydra's output directory.
+
+    Examples:
+        >>> import tempfile
+        >>> from omegaconf import OmegaConf
+        >>> cfg = OmegaConf.create({"seed": 0, "resume": "auto", "torch_threads": 1,
+        ...     "collector": {"total_frames": 256},
+        ...     "logger": {"backend": "csv", "project_name": "p"},
+        ...     "checkpoint": {"interval_frames": 128}})
+        >>> run_dir = tempfile.mkdtemp()
+        >>> run = TrainingRun(cfg, "demo", run_dir=run_dir)
+        >>> counters = RunCounters(frames=0, next_ckpt=128)
+        >>> run.restore({"progress": counters, "rng": RNGState()}, show_progress=False)
+        >>> for _ in range(2):
+        ...     counters.frames += 128
+        ...     run.log({"train/x": 1.0}, step=counters.frames)
+        ...     run.after_update()
+        >>> run.finish("256 frames.", curves={"train/x": "x"})  # doctest: +ELLIPSIS
+        Done: 256 frames.
+        Learning curve: ...learning_curve.png
+        ...
+        >>> TrainingRun(cfg, "demo", run_dir=run_dir).nothing_to_do()  # doctest: +ELLIPSIS
+        Nothing to do: 256 frames already done in ...
+        True
+    """
+
+    def __init__(self, cfg, name: str, run_dir: str | os.PathLike | None = None):
+        if _RECIPES_DIR not in sys.path:
+            # A sweep's worker process (submitit, Ray) gets this code by value
+            # but not the recipes' folder on its path, where the results tools
+            # the run reads at its end live.
+            sys.path.insert(0, _RECIPES_DIR)
+        if run_dir is None:
+            from hydra.core.hydra_config import HydraConfig
+
+            run_dir = HydraConfig.get().runtime.output_dir
+        self.cfg = cfg
+        self.name = name
+        self.run_dir = Path(run_dir)
+        self.checkpoint_path, self.resumed_from = prepare_run(cfg, self.run_dir)
+        self.logger = None
+        self.progress_bar = None
+        self.counters: RunCounters | None = None
+        self._checkpointer: Checkpointer | None = None
+        self._stop: StopSignal | None = None
+        self._on_exit: Sequence[Any] = ()
+
+    def nothing_to_do(self) -> bool:
+        """Whether the checkpoint already holds ``collector.total_frames`` frames
+        (a finished run in a rerun sweep), saying so."""
+        frames = 0 if self.resumed_from is None else self.resumed_from["frames"]
+        if frames < self.cfg.collector.total_frames:
+            return False
+        print(f"Nothing to do: {frames} frames already done in {self.run_dir}.")
+        return True
+
+    def restore(
+        self,
+        components: Mapping[str, Any],
+        *,
+        on_exit: Sequence[Any] = (),
+        show_progress: bool | None = None,
+    ) -> None:
+        """Loads the checkpoint (if resuming) into ``components`` and starts the loop.
+
+        Args:
+            components: what a checkpoint holds, name -> object with
+                ``state_dict()`` / ``load_state_dict()`` (:class:`Checkpointer`);
+                ``"progress"`` is the run's :class:`RunCounters` (``frames``,
+                ``next_ckpt``), and :class:`RNGState` comes last.
+            on_exit: callables run before the process exits on a stop request,
+                and at :meth:`finish` (the collector's ``shutdown``).
+            show_progress: draw a progress bar; default: unless in a sweep
+                (parallel bars garble each other; the logs hold the progress).
+        """
+        cfg = self.cfg
+        self.counters = components["progress"]
+        self._checkpointer = Checkpointer(
+            self.checkpoint_path,
+            components,
+            config=_resolved(cfg),
+            keep_dir=self.run_dir / "checkpoints"
+            if cfg.checkpoint.get("keep", False)
+            else None,
+        )
+        if self.resumed_from:
+            self._checkpointer.load(self.resumed_from)
+        self.logger = get_run_logger(
+            cfg.logger.backend, self.run_dir, self.name, cfg.logger.project_name
+        )
+        self._stop = StopSignal()
+        self._on_exit = tuple(on_exit)
+        if show_progress is None:
+            show_progress = not _in_sweep()
+        from tqdm import tqdm
+
+        self.progress_bar = tqdm(
+            total=cfg.collector.total_frames,
+            initial=self.counters.frames,
+            unit="f",
+            desc=f"{self.name} {cfg.get('bonus', '')}".strip(),
+            disable=not show_progress,
+        )
+        self.start_frames = self.counters.frames
+        self._start_time = time.perf_counter()
+
+    def per_second(self, count: float) -> float:
+        """``count`` (frames, updates done since :meth:`restore`) per second."""
+        return count / (time.perf_counter() - self._start_time)
+
+    def log(self, metrics: Mapping[str, float], step: int) -> None:
+        """Logs each scalar of ``metrics`` at ``step`` (nothing without a logger)."""
+        if self.logger is not None:
+            for name, value in metrics.items():
+                self.logger.log_scalar(name, value, step=step)
+
+    def after_update(self) -> None:
+        """The end of an iteration (updates done, logs written): progress, the
+        periodic checkpoint, and on a stop request save, say how to resume, exit
+        with status ``128 + signal`` (:func:`_exit_process`)."""
+        frames = self.counters.frames
+        self.progress_bar.update(frames - self.progress_bar.n)
+        self._checkpointer.save_every(self.cfg.checkpoint.interval_frames)
+        if not self._stop:
+            return
+        self._checkpointer.save()
+        self.progress_bar.close()
+        for close in self._on_exit:
+            close()
+        print(
+            f"{self._stop.name}: stopped at {frames} frames, checkpoint saved. "
+            f"Resume with: {resume_command(self.run_dir)}"
+        )
+        _exit_process(128 + self._stop.received)
+
+    def finish(
+        self,
+        summary: str,
+        *,
+        curves: Mapping[str, str],
+        title: str = "",
+        ylabel: str = "",
+    ) -> Path | None:
+        """The final checkpoint, the learning curve and the summary.
+
+        Args:
+            summary: what the run reached (printed after ``Done: ``).
+            curves: logged scalar -> label, drawn into ``learning_curve.png``
+                (:func:`plot_run_curves`).
+
+        Returns:
+            The learning curve's path (``None`` when nothing was logged).
+        """
+        self._stop.restore()
+        self.progress_bar.close()
+        self._checkpointer.save()
+        for close in self._on_exit:
+            close()
+        curve = plot_run_curves(
+            self.run_dir / "logs",
+            curves,
+            self.run_dir / "learning_curve.png",
+            title=title,
+            ylabel=ylabel,
+        )
+        print(
+            f"Done: {summary}\nLearning curve: {curve}\n"
+            f"Logs: {self.run_dir / 'logs'}\nRun directory: {self.run_dir}"
+        )
+        return curve
+
+
+def _in_sweep() -> bool:
+    try:
+        from hydra.core.hydra_config import HydraConfig
+        from hydra.types import RunMode
+
+        return HydraConfig.get().mode == RunMode.MULTIRUN
+    except (ImportError, ValueError):
+        return False
+
+
+def _resolved(cfg) -> dict[str, Any]:
+    from omegaconf import OmegaConf
+
+    return OmegaConf.to_container(cfg, resolve=True)
 
 
 class EpisodeStats:
@@ -611,7 +839,35 @@ def get_run_logger(
     )
 
 
-def evaluate_episodes(
+EVAL_SEED_OFFSET = 10_000
+"""The evaluation envs are seeded ``seed + EVAL_SEED_OFFSET``: other episodes than
+the training envs' with the same ``seed``."""
+
+
+class Evaluation(NamedTuple):
+    """The extrinsic returns of the episodes an evaluation ran.
+
+    Examples:
+        >>> result = Evaluation([0.0, 0.5, 1.0, 0.0])
+        >>> result.mean_return, result.success_rate
+        (0.375, 0.5)
+    """
+
+    returns: list[float]
+
+    @property
+    def mean_return(self) -> float:
+        """The mean return (0 when no episode ended)."""
+        return sum(self.returns) / max(len(self.returns), 1)
+
+    @property
+    def success_rate(self) -> float:
+        """The fraction of episodes with a positive return (MiniGrid pays a
+        positive reward only on success)."""
+        return sum(r > 0 for r in self.returns) / max(len(self.returns), 1)
+
+
+def evaluate(
     env,
     policy,
     episodes: int,
@@ -620,8 +876,8 @@ def evaluate_episodes(
     deterministic: bool = True,
     chunk: int = 256,
     max_chunks: int = 100,
-) -> list[float]:
-    """Returns of the first ``episodes`` episodes that end, under ``torch.no_grad()``.
+) -> Evaluation:
+    """Runs ``policy`` until ``episodes`` episodes end, under ``torch.no_grad()``.
 
     The env is reseeded with ``seed`` first, so every evaluation sees the same
     episodes. It must sum the episode return under ``("next", "episode_reward")``
@@ -631,9 +887,12 @@ def evaluate_episodes(
         env: a (batched) TorchRL env.
         policy: the policy to evaluate.
         episodes (int): how many finished episodes to return.
-        seed (int): the evaluation seed.
+        seed (int): the evaluation seed (the run's ``seed + EVAL_SEED_OFFSET``).
         deterministic (bool): ``ExplorationType.DETERMINISTIC`` or ``RANDOM``.
         chunk (int): steps per rollout call; ``max_chunks`` bounds the total.
+
+    Returns:
+        The returns of the first ``episodes`` episodes that ended.
     """
     from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 
@@ -655,7 +914,7 @@ def evaluate_episodes(
             state = step_mdp(rollout[..., -1])
             if len(returns) >= episodes:
                 break
-    return returns[:episodes]
+    return Evaluation(returns[:episodes])
 
 
 def read_scalar_csv(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
@@ -721,27 +980,34 @@ def find_scalar_log(log_dir: str | os.PathLike, name: str) -> Path:
     return matches[0]
 
 
-def plot_scalar_logs(
+def plot_run_curves(
     log_dir: str | os.PathLike,
-    name: str,
+    curves: Mapping[str, str],
     path: str | os.PathLike,
     *,
-    label: str = "",
     title: str = "",
     ylabel: str = "",
 ) -> Path | None:
-    """Plots one logged scalar against frames, read back from the run's CSV logs.
+    """Plots logged scalars against frames, read back from the run's CSV logs.
 
-    Returns ``None`` (and draws nothing) when the run logged no such scalar, for
-    instance with ``logger.backend=`` (no logger).
+    Args:
+        log_dir: the run's ``logs`` directory.
+        curves: scalar name (``"train/episode_return"``) -> its label.
+        path: the PNG to write.
+
+    Returns:
+        ``path``, or ``None`` (nothing drawn) when the run logged none of the
+        scalars, for instance with ``logger.backend=`` (no logger). Points with
+        no value yet (NaN before the first episode ends) are left out.
     """
-    try:
-        steps, values = read_scalar_csv(find_scalar_log(log_dir, name))
-    except FileNotFoundError:
+    data = {}
+    for name, label in curves.items():
+        try:
+            steps, values = read_scalar_csv(find_scalar_log(log_dir, name))
+        except FileNotFoundError:
+            continue
+        finite = np.isfinite(values)
+        data[label] = (steps[finite], values[finite])
+    if not data:
         return None
-    return plot_learning_curves(
-        {label or name: (steps, values)},
-        path,
-        title=title,
-        ylabel=ylabel or name,
-    )
+    return plot_learning_curves(data, path, title=title, ylabel=ylabel)

@@ -33,18 +33,15 @@ uninterrupted run would have). Ctrl-C or SIGTERM saves a checkpoint and exits.
 
 from __future__ import annotations
 
-import time
+import sys
 from pathlib import Path
 
-import cloudpickle
+# recipes/ holds what the recipes share (common) and the results tools (results).
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
 import hydra
-import numpy as np
 import torch
 import utils  # the builders beside this script
-from hydra.core.hydra_config import HydraConfig
-from hydra.types import RunMode
-from omegaconf import OmegaConf
-from tqdm import tqdm
 from utils import (
     OBS_KEY,
     ObservationNormalizer,
@@ -59,70 +56,36 @@ from utils import (
 )
 
 from common.run import (
-    Checkpointer,
+    EVAL_SEED_OFFSET,
     EpisodeStats,
-    Progress,
     RNGState,
-    StopSignal,
-    evaluate_episodes,
-    find_scalar_log,
-    get_run_logger,
-    plot_learning_curves,
-    prepare_run,
-    read_scalar_csv,
+    RunCounters,
+    TrainingRun,
+    evaluate,
+    register_sweep_pickling,
 )
 
 # Sweep launchers pickle this script's task function for their worker processes,
-# where the module beside the script is not importable (submitit, Ray): it travels
-# by value instead.
-cloudpickle.register_pickle_by_value(utils)
-
-EVAL_SEED_OFFSET = 10_000
-
-
-def evaluate(env, actor, episodes: int) -> float:
-    """Mean extrinsic return of the noiseless actor over ``episodes`` episodes."""
-    returns = evaluate_episodes(env, actor, episodes, seed=env.eval_seed, chunk=1000)
-    return sum(returns) / max(len(returns), 1)
-
-
-def plot_returns(log_dir: Path, path: Path, title: str) -> Path | None:
-    """Train and evaluation returns, read back from the run's CSV logs."""
-    curves = {}
-    for name, label in (
-        ("train/episode_return", "train (with noise)"),
-        ("eval/episode_return", "eval (deterministic)"),
-    ):
-        try:
-            steps, values = read_scalar_csv(find_scalar_log(log_dir, name))
-        except FileNotFoundError:  # not logged (logger.backend=) or not yet
-            continue
-        finite = np.isfinite(values)  # NaN before the first episode ends
-        curves[label] = (steps[finite], values[finite])
-    if not curves:
-        return None
-    return plot_learning_curves(
-        curves, path, title=title, ylabel="extrinsic episode return"
-    )
+# where the module beside the script is not importable (submitit, Ray).
+register_sweep_pickling(utils)
 
 
 @hydra.main(config_path=".", config_name="config", version_base=None)
 def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
     check_config(cfg)
-    run_dir = Path(HydraConfig.get().runtime.output_dir)
-    ckpt_path, ckpt = prepare_run(cfg, run_dir)
-    if ckpt and ckpt["frames"] >= cfg.collector.total_frames:
-        # A finished run in a rerun sweep: nothing to build.
-        print(f"Nothing to do: {ckpt['frames']} frames already done in {run_dir}.")
+    # Seeds, resume checks, the checkpoint to resume from (common/run.py)
+    run = TrainingRun(cfg, "ddpg")
+    if run.nothing_to_do():
         return
 
-    # ---- envs, models, losses, buffer -----------------------------------------
-    # Seeded with cfg.seed whatever the checkpoint: a resumed run restores the
-    # episodes in progress from the collector's state instead.
+    # Create envs, seeded with cfg.seed whatever the checkpoint: a resumed run
+    # restores the episodes in progress from the collector's state instead.
     env = make_env(cfg, cfg.env.num_envs, seed=cfg.seed)
-    eval_env = make_env(cfg, cfg.eval.num_envs, seed=cfg.seed + EVAL_SEED_OFFSET)
-    eval_env.eval_seed = cfg.seed + EVAL_SEED_OFFSET
+    eval_seed = cfg.seed + EVAL_SEED_OFFSET
+    eval_env = make_env(cfg, cfg.eval.num_envs, seed=eval_seed)
     obs_dim = env.observation_spec[OBS_KEY].shape[-1]
+
+    # Create the actor, critic and loss
     actor, policy, noise, loss_module, target_updater = make_ddpg(cfg, env)
     actor_optim = torch.optim.Adam(
         loss_module.actor_network_params.flatten_keys().values(),
@@ -135,6 +98,8 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         fused=True,
     )
     obs_norm = ObservationNormalizer(obs_dim, clip=cfg.obs_norm.clip)
+
+    # Create the bonus and the replay buffer
     bonus_transform, vae_loss = make_bonus(cfg, obs_dim)
     vae_optim = None
     if vae_loss is not None:
@@ -151,20 +116,19 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
     stats = EpisodeStats(window=cfg.logger.episode_window)
     # Per-update scalars not yet logged (means over the updates between log lines).
     pending = ScalarMeans()
-    progress = Progress(
+    progress = RunCounters(
         frames=0,
         updates=0,
         next_eval=cfg.eval.interval_frames,
         next_ckpt=cfg.checkpoint.interval_frames,
     )
-    # The collector holds the episodes in progress; it runs to total_frames (and
+    # Create the collector: it holds the episodes in progress; it runs to total_frames (and
     # acts at random up to init_random_frames) from its own saved frame count, so
     # it is built for the whole run.
     collector = make_collector(env, policy, cfg)
     # What a checkpoint holds, saved and loaded from this one mapping (RNG last:
-    # building the run above drew random numbers).
-    checkpointer = Checkpointer(
-        ckpt_path,
+    # building the run above drew random numbers); restored when resuming.
+    run.restore(
         {
             "progress": progress,
             # actor, critic and the target networks
@@ -184,16 +148,10 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
             "pending_logs": pending,
             "rng": RNGState(),
         },
-        config=OmegaConf.to_container(cfg, resolve=True),
+        on_exit=[collector.shutdown],
     )
-    if ckpt:
-        checkpointer.load(ckpt)
     frames, updates = progress.frames, progress.updates
-    logger = get_run_logger(
-        cfg.logger.backend, run_dir, "ddpg", cfg.logger.project_name
-    )
     updates_per_batch = int(cfg.collector.frames_per_batch * cfg.optim.utd_ratio)
-    stop = StopSignal()
 
     def add_bonus_scalars(next_td) -> None:
         # The raw bonus, and the normalised one that is mixed into the reward.
@@ -206,16 +164,8 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
                 next_td[bonus_transform.normalized_reward_key],
             )
 
-    # ---- training loop ----------------------------------------------------------
-    pbar = tqdm(
-        total=cfg.collector.total_frames,
-        initial=frames,
-        unit="f",
-        desc=cfg.bonus,
-        # In a sweep, parallel bars garble each other: the logs hold the progress.
-        disable=HydraConfig.get().mode == RunMode.MULTIRUN,
-    )
-    start, start_frames, start_updates = time.perf_counter(), frames, updates
+    # Main loop
+    start_updates = updates
     for data in collector:
         frames += data.numel()
         iteration = frames // cfg.collector.frames_per_batch - 1
@@ -260,10 +210,9 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
                     for key, value in vae_td.items():
                         pending.add(f"bonus/{key}", value)
 
-        pbar.update(data.numel())
-        elapsed = time.perf_counter() - start
-        fps = (frames - start_frames) / elapsed
-        ups = (updates - start_updates) / elapsed
+        # Logging
+        fps = run.per_second(frames - run.start_frames)
+        ups = run.per_second(updates - start_updates)
         if iteration % cfg.logger.log_interval == 0:
             metrics = {
                 "train/episode_return": stats.mean_return,
@@ -276,41 +225,32 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
             if bonus_transform is not None:
                 metrics["train/intrinsic_coef"] = bonus_transform.current_coef()
             metrics.update(pending.pop_means())
-            if logger is not None:
-                for name, value in metrics.items():
-                    logger.log_scalar(name, value, step=frames)
-            pbar.set_postfix(
+            run.log(metrics, step=frames)
+            run.progress_bar.set_postfix(
                 fps=f"{fps:.0f}", ups=f"{ups:.0f}", ret=f"{stats.mean_return:.1f}"
             )
 
+        # Evaluation: the actor without noise, on the extrinsic reward
         progress.frames, progress.updates = frames, updates
         if frames >= progress.next_eval:
             progress.next_eval += cfg.eval.interval_frames
-            ret = evaluate(eval_env, actor, cfg.eval.episodes)
-            if logger is not None:
-                logger.log_scalar("eval/episode_return", ret, step=frames)
-        # Checkpoints at the end of an iteration only: updates done, logs written.
-        if frames >= progress.next_ckpt:
-            progress.next_ckpt += cfg.checkpoint.interval_frames
-            checkpointer.save()
-        stop.save_and_exit(
-            checkpointer, frames, run_dir, pbar.close, collector.shutdown
-        )
-    stop.restore()
-    pbar.close()
-    checkpointer.save()
-    collector.shutdown()
+            result = evaluate(
+                eval_env, actor, cfg.eval.episodes, seed=eval_seed, chunk=1000
+            )
+            run.log({"eval/episode_return": result.mean_return}, step=frames)
+        # Progress, periodic checkpoint, stop on a signal (common/run.py)
+        run.after_update()
 
-    curve = plot_returns(
-        run_dir / "logs",
-        run_dir / "learning_curve.png",
-        title=f"{cfg.env.name}: DDPG + {cfg.bonus} (seed {cfg.seed})",
-    )
-    print(
-        f"Done: {frames} frames, {updates} updates, {stats.episodes} episodes, last "
+    run.finish(
+        f"{frames} frames, {updates} updates, {stats.episodes} episodes, last "
         f"{cfg.logger.episode_window}-episode mean return {stats.mean_return:.1f}, "
-        f"{fps:.0f} frames/s, {ups:.0f} updates/s.\n"
-        f"Learning curve: {curve}\nLogs: {run_dir / 'logs'}\nRun directory: {run_dir}"
+        f"{fps:.0f} frames/s, {ups:.0f} updates/s.",
+        curves={
+            "train/episode_return": "train (with noise)",
+            "eval/episode_return": "eval (deterministic)",
+        },
+        title=f"{cfg.env.name}: DDPG + {cfg.bonus} (seed {cfg.seed})",
+        ylabel="extrinsic episode return",
     )
 
 

@@ -33,27 +33,19 @@ uninterrupted run would have). Ctrl-C or SIGTERM saves a checkpoint and exits.
 from __future__ import annotations
 
 import sys
-import time
 from pathlib import Path
 
 # recipes/ holds what the recipes share (common) and the results tools (results).
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import cloudpickle
 import hydra
 import torch
 import utils  # the learners beside this script
-from hydra.core.hydra_config import HydraConfig
-from hydra.types import RunMode
-from omegaconf import OmegaConf
-from tqdm import tqdm
 
 import common
 from common.minigrid import (
-    EVAL_SEED_OFFSET,
     bonus_update_steps,
     documented_results_message,
-    evaluate,
     load_bonus_model,
     make_actor_critic,
     make_bonus,
@@ -64,36 +56,35 @@ from common.minigrid import (
     train_bonus_model,
 )
 from common.run import (
-    Checkpointer,
+    EVAL_SEED_OFFSET,
     EpisodeStats,
-    Progress,
     RNGState,
-    StopSignal,
-    get_run_logger,
-    plot_scalar_logs,
-    prepare_run,
+    RunCounters,
+    TrainingRun,
+    evaluate,
+    register_sweep_pickling,
 )
 
 # Sweep launchers pickle this script's task function for their worker processes,
-# where the modules beside the script are not importable (submitit, Ray): they
-# travel by value instead.
-cloudpickle.register_pickle_by_value(utils)
-cloudpickle.register_pickle_by_value(common)
+# where the modules beside the script are not importable (submitit, Ray).
+register_sweep_pickling(utils, common)
 
 
 @hydra.main(config_path=".", config_name="config", version_base=None)
 def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
     utils.check_config(cfg)
     algo = cfg.algo.name
-    run_dir = Path(HydraConfig.get().runtime.output_dir)
-    ckpt_path, ckpt = prepare_run(cfg, run_dir)
+    # Seeds, resume checks, the checkpoint to resume from (common/run.py)
+    run = TrainingRun(cfg, algo)
+    if run.nothing_to_do():
+        return
 
-    # ---- envs, models, losses -------------------------------------------------
+    # Create envs and the bonus
     env = make_env(cfg, cfg.env.num_envs, seed=cfg.seed)
     bonus_transform, bonus_loss, env_side = make_bonus(cfg, env.action_spec, cfg.bonus)
     if env_side is not None:
         env.append_transform(env_side)
-    if cfg.intrinsic.init_from and not ckpt:
+    if cfg.intrinsic.init_from and not run.resumed_from:
         # Transfer: the bonus model starts from another run's (a resumed run
         # restores its own from the checkpoint below).
         source_frames = load_bonus_model(
@@ -102,6 +93,8 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         print(f"Bonus model from {cfg.intrinsic.init_from} ({source_frames} frames).")
     eval_seed = cfg.seed + EVAL_SEED_OFFSET
     eval_env = make_env(cfg, cfg.eval.num_envs, seed=eval_seed)
+
+    # Create the actor-critic
     use_int_critic = cfg.intrinsic.intrinsic_critic and bonus_transform is not None
     # PPO's policy records the log-probability of each action it takes: its ratio.
     model, int_value = make_actor_critic(
@@ -109,6 +102,8 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
     )
     policy = model.get_policy_operator()
     trunk = shared_trunk(model)
+
+    # Create losses and optimisers
     loss_module, advantage, int_value_loss = utils.make_loss(
         cfg, model, int_value, bonus_transform
     )
@@ -125,13 +120,14 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
     buffer = utils.make_minibatch_buffer(cfg)
 
     stats = EpisodeStats(window=cfg.logger.episode_window)
-    progress = Progress(
+    progress = RunCounters(
         frames=0,
         next_eval=cfg.eval.interval_frames,
         next_ckpt=cfg.checkpoint.interval_frames,
     )
-    # The collector holds the episodes in progress; it runs to total_frames from
-    # its own saved frame count, so it is built for the whole run. With
+    # Create the collector: it holds the episodes in progress; it runs to
+    # total_frames from its own saved frame count, so it is built for the whole
+    # run. With
     # collector.workers > 1, worker processes step the envs synchronously, each
     # rollout with the policy's weights after the last update (synced before each
     # batch); the bonus and the updates stay in this process.
@@ -139,9 +135,8 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         env, policy, cfg, total_frames=cfg.collector.total_frames
     )
     # What a checkpoint holds, saved and loaded from this one mapping (RNG last:
-    # building the run above drew random numbers).
-    checkpointer = Checkpointer(
-        ckpt_path,
+    # building the run above drew random numbers); restored when resuming.
+    run.restore(
         {
             "progress": progress,
             "model": model,
@@ -155,32 +150,13 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
             "minibatch_sampler": None if buffer is None else buffer.sampler,
             "rng": RNGState(),
         },
-        config=OmegaConf.to_container(cfg, resolve=True),
-        keep_dir=run_dir / "checkpoints" if cfg.checkpoint.keep else None,
+        on_exit=[collector.shutdown],
     )
-    if ckpt:
-        checkpointer.load(ckpt)
     frames = progress.frames
-    logger = get_run_logger(cfg.logger.backend, run_dir, algo, cfg.logger.project_name)
-    if frames >= cfg.collector.total_frames:
-        print(f"Nothing to do: {frames} frames already done in {run_dir}.")
-        collector.shutdown()
-        return
     variant = cfg.intrinsic.vae.variant if cfg.bonus == "vae" else None
     logged_losses = utils.LOGGED_LOSSES[algo]
 
-    stop = StopSignal()
-
-    # ---- training loop ----------------------------------------------------------
-    pbar = tqdm(
-        total=cfg.collector.total_frames,
-        initial=frames,
-        unit="f",
-        desc=f"{algo} {cfg.bonus}",
-        # In a sweep, parallel bars garble each other: the logs hold the progress.
-        disable=HydraConfig.get().mode == RunMode.MULTIRUN,
-    )
-    start, start_frames = time.perf_counter(), frames
+    # Main loop
     for data in collector:
         frames += data.numel()
         iteration = frames // data.numel() - 1
@@ -244,22 +220,23 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         if variant == "lagged_kl" and iteration % cfg.intrinsic.vae.lag_updates == 0:
             bonus_transform.snapshot()
 
-        pbar.update(data.numel())
-        fps = (frames - start_frames) / (time.perf_counter() - start)
+        # Logging
+        fps = run.per_second(frames - run.start_frames)
         if iteration % cfg.logger.log_interval == 0:
             metrics = rollout_metrics(stats, data, bonus_transform, bonus_td)
             metrics.update({f"train/{k}": v.item() for k, v in logs.items()})
             metrics["time/fps"] = fps
-            if logger is not None:
-                for name, value in metrics.items():
-                    logger.log_scalar(name, value, step=frames)
-            pbar.set_postfix(fps=f"{fps:.0f}", ret=f"{stats.mean_return:.3f}")
+            run.log(metrics, step=frames)
+            run.progress_bar.set_postfix(
+                fps=f"{fps:.0f}", ret=f"{stats.mean_return:.3f}"
+            )
 
+        # Evaluation
         progress.frames = frames
         if frames >= progress.next_eval:
             progress.next_eval += cfg.eval.interval_frames
             model.eval()
-            ret, success = evaluate(
+            result = evaluate(
                 eval_env,
                 policy,
                 cfg.eval.episodes,
@@ -267,31 +244,23 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
                 deterministic=cfg.eval.deterministic,
             )
             model.train()
-            if logger is not None:
-                logger.log_scalar("eval/episode_return", ret, step=frames)
-                logger.log_scalar("eval/success_rate", success, step=frames)
-        checkpointer.save_every(cfg.checkpoint.interval_frames)
-        stop.save_and_exit(
-            checkpointer, frames, run_dir, pbar.close, collector.shutdown
-        )
-    stop.restore()
-    pbar.close()
-    checkpointer.save()
-    collector.shutdown()
+            run.log(
+                {
+                    "eval/episode_return": result.mean_return,
+                    "eval/success_rate": result.success_rate,
+                },
+                step=frames,
+            )
+        # Progress, periodic checkpoint, stop on a signal (common/run.py)
+        run.after_update()
 
-    curve = plot_scalar_logs(
-        run_dir / "logs",
-        "train/episode_return",
-        run_dir / "learning_curve.png",
-        label=cfg.bonus,
+    run.finish(
+        f"{frames} frames, {stats.episodes} episodes, last "
+        f"{cfg.logger.episode_window}-episode mean return {stats.mean_return:.3f}, "
+        f"success rate {stats.success_rate:.2f}, {fps:.0f} frames/s.",
+        curves={"train/episode_return": cfg.bonus},
         title=f"{cfg.env.name}: {algo.upper()} + {cfg.bonus} (seed {cfg.seed})",
         ylabel=f"extrinsic return ({cfg.logger.episode_window}-episode mean)",
-    )
-    print(
-        f"Done: {frames} frames, {stats.episodes} episodes, last "
-        f"{cfg.logger.episode_window}-episode mean return {stats.mean_return:.3f}, "
-        f"success rate {stats.success_rate:.2f}, {fps:.0f} frames/s.\n"
-        f"Learning curve: {curve}\nLogs: {run_dir / 'logs'}\nRun directory: {run_dir}"
     )
     measured = documented_results_message(
         cfg.env.name,

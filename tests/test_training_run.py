@@ -1,0 +1,100 @@
+"""The run scaffolding the recipes share (common/run.py), without running a recipe."""
+
+from __future__ import annotations
+
+import copyreg
+import subprocess
+import sys
+from pathlib import Path
+
+import cloudpickle
+import torch
+import torch.utils.deterministic
+from omegaconf import OmegaConf
+
+from common.run import (
+    RNGState,
+    RunCounters,
+    TrainingRun,
+    load_checkpoint,
+    read_scalar_csv,
+    register_sweep_pickling,
+)
+
+RECIPES = Path(__file__).resolve().parents[1] / "recipes"
+
+
+def test_importing_the_run_support_registers_no_pickling_hook():
+    # A hook registered at import is a mechanism a reader cannot see: the recipe
+    # calls register_sweep_pickling itself.
+    code = (
+        "import copyreg, sys, torch.utils.deterministic\n"
+        f"sys.path.insert(0, {str(RECIPES)!r})\n"
+        "import common.run, common.minigrid\n"
+        "t = type(torch.utils.deterministic)\n"
+        "assert t not in copyreg.dispatch_table, 'hook registered at import'\n"
+        "common.run.register_sweep_pickling()\n"
+        "assert t in copyreg.dispatch_table\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
+
+
+def test_a_task_function_naming_torch_utils_deterministic_pickles_for_a_sweep():
+    def task(cfg):  # names torch, utils and deterministic, as the recipes' mains do
+        return torch.nn.utils, cfg.eval.deterministic
+
+    register_sweep_pickling()
+    assert type(torch.utils.deterministic) in copyreg.dispatch_table
+    restored = cloudpickle.loads(cloudpickle.dumps(task))
+    cfg = OmegaConf.create({"eval": {"deterministic": True}})
+    assert restored(cfg) == (torch.nn.utils, True)
+
+
+def _cfg(total_frames: int, interval: int, keep: bool = False):
+    return OmegaConf.create(
+        {
+            "seed": 0,
+            "resume": "auto",
+            "torch_threads": 1,
+            "collector": {"total_frames": total_frames},
+            "logger": {"backend": "csv", "project_name": "p"},
+            "checkpoint": {"interval_frames": interval, "keep": keep},
+        }
+    )
+
+
+def _train(run_dir, total_frames: int, keep: bool = False):
+    run = TrainingRun(_cfg(total_frames, 128, keep), "demo", run_dir=run_dir)
+    if run.nothing_to_do():
+        return None
+    counters = RunCounters(frames=0, next_ckpt=128)
+    net = torch.nn.Linear(2, 1)
+    run.restore({"progress": counters, "net": net, "rng": RNGState()})
+    while counters.frames < total_frames:
+        counters.frames += 64
+        run.log({"train/draw": torch.rand(()).item()}, step=counters.frames)
+        run.after_update()
+    run.finish(f"{counters.frames} frames.", curves={"train/draw": "draw"})
+    return run
+
+
+def test_a_training_run_saves_periodically_keeps_and_resumes_where_it_stopped(
+    tmp_path, capsys
+):
+    whole, parts = tmp_path / "whole", tmp_path / "parts"
+    _train(whole, 512, keep=True)
+    assert load_checkpoint(whole / "checkpoint.pt")["frames"] == 512
+    kept = sorted(p.name for p in (whole / "checkpoints").iterdir())
+    assert kept == [f"checkpoint_{n}.pt" for n in (128, 256, 384, 512)]
+    assert (whole / "learning_curve.png").exists()
+    assert "Done: 512 frames." in capsys.readouterr().out
+    # the same run in two parts: the second resumes from the first's checkpoint
+    _train(parts, 256)
+    _train(parts, 512)
+    csv = "logs/demo/scalars/train/draw.csv"
+    assert (whole / csv).read_bytes() == (parts / csv).read_bytes()
+    steps, _ = read_scalar_csv(parts / csv)
+    assert steps.tolist() == list(range(64, 513, 64))
+    # a finished run has nothing to do
+    assert _train(parts, 512) is None
+    assert "Nothing to do: 512 frames already done" in capsys.readouterr().out
