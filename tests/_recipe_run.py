@@ -9,7 +9,7 @@ import subprocess
 import time
 from pathlib import Path
 
-from common.run import load_checkpoint
+from common.run import checkpoint_info, load_checkpoint
 
 
 def load_recipe_utils(recipe_dir: Path):
@@ -27,9 +27,10 @@ def wait_for_checkpoint(ckpt_path: Path, min_frames: int, timeout: float = 120):
     deadline = time.time() + timeout
     while time.time() < deadline:
         try:
-            if load_checkpoint(ckpt_path)["frames"] >= min_frames:
+            # the manifest only: cheap enough to poll
+            if checkpoint_info(ckpt_path)["frames"] >= min_frames:
                 return
-        except (FileNotFoundError, EOFError, RuntimeError):
+        except FileNotFoundError:
             pass  # not written yet
         time.sleep(0.05)
     raise TimeoutError(f"no checkpoint with {min_frames} frames at {ckpt_path}")

@@ -65,13 +65,13 @@ def test_every_bonus_runs_end_to_end(tmp_path, bonus):
         _, raw = read_scalar_csv(scalars / "train" / "intrinsic_reward.csv")
         assert torch.isfinite(torch.as_tensor(raw)).all()
         assert list((scalars / "bonus").iterdir()), "bonus-model losses are logged"
-    ckpt = load_checkpoint(run_dir / "checkpoint.pt")
+    ckpt = load_checkpoint(run_dir / "checkpoint.torchrl")
     assert ckpt["frames"] == 512
-    kept = sorted((run_dir / "checkpoints").glob("*.pt")) if keep else []
+    kept = sorted((run_dir / "checkpoints").glob("*.torchrl")) if keep else []
     if keep:
         # one per checkpoint.interval_frames (128), each at its own frame count
         assert [p.name for p in kept] == [
-            f"checkpoint_{n}.pt" for n in (128, 256, 384, 512)
+            f"checkpoint-{n:012d}.torchrl" for n in (128, 256, 384, 512)
         ]
         _, _, frames = load_bonus_transform(kept[1])
         assert frames == 256
@@ -108,7 +108,7 @@ def test_transfer_starts_the_bonus_model_from_another_run(tmp_path):
     assert "Bonus model from" in out
 
     def vae_weights(run):
-        state = load_checkpoint(run / "checkpoint.pt")["bonus_transform"]
+        state = load_checkpoint(run / "checkpoint.torchrl")["bonus_transform"]
         return {k: v for k, v in state.items() if k.startswith("vae.")}
 
     src, dst = vae_weights(source), vae_weights(frozen)
@@ -187,7 +187,7 @@ def test_killed_and_resumed_run_logs_what_the_uninterrupted_run_logs(
     killed_dir = tmp_path / "killed"
     cmd = [sys.executable, str(MAIN), f"hydra.run.dir={killed_dir}", *TINY]
     killed = kill_after_checkpoint(
-        [*cmd, *overrides, total], killed_dir / "checkpoint.pt", min_frames=256
+        [*cmd, *overrides, total], killed_dir / "checkpoint.torchrl", min_frames=256
     )
     assert 256 <= killed["frames"] < 1024, "the kill must land mid-run"
     run_recipe(killed_dir, *overrides, total)
@@ -197,7 +197,7 @@ def test_killed_and_resumed_run_logs_what_the_uninterrupted_run_logs(
 def test_a_run_killed_before_its_first_checkpoint_restarts_without_its_old_rows(
     tmp_path,
 ):
-    # killed before any checkpoint: logs on disk, no checkpoint.pt
+    # killed before any checkpoint: logs on disk, no checkpoint
     args = [
         "bonus=vae",
         "collector.total_frames=384",
@@ -206,7 +206,7 @@ def test_a_run_killed_before_its_first_checkpoint_restarts_without_its_old_rows(
     run_recipe(tmp_path / "whole", *args)
     killed_dir = tmp_path / "killed"
     run_recipe(killed_dir, *args)
-    (killed_dir / "checkpoint.pt").unlink()
+    (killed_dir / "checkpoint.torchrl").unlink()
     run_recipe(killed_dir, *args)
     assert differing_logs(tmp_path / "whole", killed_dir) == []
 
@@ -221,13 +221,13 @@ def test_sigint_and_sigterm_save_a_checkpoint_and_exit_cleanly(tmp_path):
             stderr=subprocess.PIPE,
             text=True,
         )
-        wait_for_checkpoint(run_dir / "checkpoint.pt", min_frames=128)
+        wait_for_checkpoint(run_dir / "checkpoint.torchrl", min_frames=128)
         proc.send_signal(sig)
         out, err = proc.communicate(timeout=60)
         assert proc.returncode == 128 + sig, err[-2000:]
         assert "Traceback" not in err
         assert f"{sig.name}: stopped at" in out and "Resume with:" in out
-        frames = load_checkpoint(run_dir / "checkpoint.pt")["frames"]
+        frames = load_checkpoint(run_dir / "checkpoint.torchrl")["frames"]
         steps, _ = read_scalar_csv(run_dir / "logs/a2c/scalars/train/reward.csv")
         assert steps[-1] == frames, "the checkpoint holds every logged step"
     target = f"collector.total_frames={frames + 64}"
@@ -254,10 +254,10 @@ def test_resume_refuses_a_changed_experiment_and_never_overwrites_a_run(tmp_path
         run_dir, "bonus=vae", "resume=false", "collector.total_frames=256", check=False
     )
     assert proc.returncode != 0 and "already holds a checkpoint" in proc.stderr
-    assert load_checkpoint(run_dir / "checkpoint.pt")["frames"] == 128
+    assert load_checkpoint(run_dir / "checkpoint.torchrl")["frames"] == 128
     # What does not change the experiment may change: longer, other logging.
     run_recipe(run_dir, "bonus=vae", "collector.total_frames=256", "eval.episodes=2")
-    assert load_checkpoint(run_dir / "checkpoint.pt")["frames"] == 256
+    assert load_checkpoint(run_dir / "checkpoint.torchrl")["frames"] == 256
 
 
 # submitit_local starts a process per job at once: 2 jobs (one seed) keep it short.
@@ -279,7 +279,7 @@ def test_sweep_runs_each_job_once_and_a_rerun_starts_no_new_work(
     ]
     first = subprocess.run(sweep, capture_output=True, text=True, timeout=600)
     assert first.returncode == 0, first.stderr[-3000:]
-    ckpts = sorted(tmp_path.glob("*/checkpoint.pt"))
+    ckpts = sorted(tmp_path.glob("*/checkpoint.torchrl"))
     names = sorted(p.parent.name for p in ckpts)
     assert len(names) == 2 * seeds and any("+setting=vae" in n for n in names)
     assert all(load_checkpoint(p)["frames"] == 256 for p in ckpts)
@@ -323,7 +323,7 @@ def test_sigterm_to_a_local_sweep_stops_every_job_and_starts_no_new_one(tmp_path
         )
     try:
         deadline = time.time() + 300
-        while len(list(sweep_dir.glob("*/checkpoint.pt"))) < 2:
+        while len(list(sweep_dir.glob("*/checkpoint.torchrl"))) < 2:
             assert time.time() < deadline, "the sweep wrote no 2 checkpoints"
             assert proc.poll() is None, err.read_text()[-3000:]
             time.sleep(0.2)
@@ -340,7 +340,7 @@ def test_sigterm_to_a_local_sweep_stops_every_job_and_starts_no_new_one(tmp_path
     assert sorted(p.parent.name for p in sweep_dir.glob("*/.hydra")) == started
     assert len(started) == 2, started
     for name in started:
-        frames = load_checkpoint(sweep_dir / name / "checkpoint.pt")["frames"]
+        frames = load_checkpoint(sweep_dir / name / "checkpoint.torchrl")["frames"]
         steps, _ = read_scalar_csv(
             sweep_dir / name / "logs/a2c/scalars/train/reward.csv"
         )

@@ -117,7 +117,7 @@ def _check_finished_run(run_dir: Path, proc, frames: int, bonus: str) -> None:
             assert np.isfinite(raw).all()
         bonus_logs = {p.stem for p in (scalars(run_dir) / "bonus").iterdir()}
         assert {"loss_reconstruction", "loss_kl"} <= bonus_logs
-    ckpt = load_checkpoint(run_dir / "checkpoint.pt")
+    ckpt = load_checkpoint(run_dir / "checkpoint.torchrl")
     assert ckpt["frames"] == frames
 
 
@@ -146,7 +146,7 @@ def test_killed_and_resumed_run_logs_what_the_uninterrupted_run_logs(
     whole = start_recipe(tmp_path / "whole", *run)
     killed_dir = tmp_path / "killed"
     killed = kill_after_checkpoint(
-        recipe_cmd(killed_dir, *run), killed_dir / "checkpoint.pt", min_frames=400
+        recipe_cmd(killed_dir, *run), killed_dir / "checkpoint.torchrl", min_frames=400
     )
     assert 400 <= killed["frames"] < 2000, "the kill must land mid-run"
     _check_finished_run(tmp_path / "whole", finish(whole), 2000, bonus)
@@ -155,7 +155,7 @@ def test_killed_and_resumed_run_logs_what_the_uninterrupted_run_logs(
     assert "Done: 2000 frames" in resumed.stdout
     # Every scalar file but time/*, byte for byte: same values, each step once.
     assert differing_logs(tmp_path / "whole", killed_dir) == []
-    ckpt = load_checkpoint(killed_dir / "checkpoint.pt")
+    ckpt = load_checkpoint(killed_dir / "checkpoint.torchrl")
     # Updates start with the batch that reaches init_random_frames (the first).
     assert ckpt["progress"]["updates"] == 2000 // FRAMES_PER_BATCH * 20
 
@@ -168,13 +168,13 @@ def test_sigint_and_sigterm_save_a_checkpoint_and_exit_cleanly(tmp_path):
     ]
     for sig, proc in zip(signals, procs):
         run_dir = tmp_path / sig.name
-        wait_for_checkpoint(run_dir / "checkpoint.pt", min_frames=400)
+        wait_for_checkpoint(run_dir / "checkpoint.torchrl", min_frames=400)
         proc.send_signal(sig)
         out, err = proc.communicate(timeout=60)
         assert proc.returncode == 128 + sig, err[-2000:]
         assert "Traceback" not in err
         assert f"{sig.name}: stopped at" in out and "Resume with: " in out
-        frames = load_checkpoint(run_dir / "checkpoint.pt")["frames"]
+        frames = load_checkpoint(run_dir / "checkpoint.torchrl")["frames"]
         steps, _ = read_scalar_csv(scalars(run_dir) / "train" / "updates.csv")
         assert steps[-1] == frames, "the checkpoint holds every logged step"
     # The printed command resumes the run (here with a shorter budget).
@@ -194,7 +194,7 @@ def test_resume_refuses_a_changed_experiment(tmp_path):
     run_dir = tmp_path / "run"
     run_recipe(run_dir, "bonus=vae", "collector.total_frames=200")
     config = (run_dir / "config_resolved.yaml").read_text()
-    ckpt_mtime = (run_dir / "checkpoint.pt").stat().st_mtime_ns
+    ckpt_mtime = (run_dir / "checkpoint.torchrl").stat().st_mtime_ns
     changes = {
         "env.name=Walker2d-v5": "env.name: 'HalfCheetah-v5' -> 'Walker2d-v5'",
         "bonus=none": "bonus: 'vae' -> 'none'",
@@ -210,7 +210,7 @@ def test_resume_refuses_a_changed_experiment(tmp_path):
         assert proc.returncode != 0
         assert "the experiment changed" in proc.stderr and message in proc.stderr
     assert (run_dir / "config_resolved.yaml").read_text() == config
-    assert (run_dir / "checkpoint.pt").stat().st_mtime_ns == ckpt_mtime
+    assert (run_dir / "checkpoint.torchrl").stat().st_mtime_ns == ckpt_mtime
 
 
 def test_runs_without_a_logger(tmp_path):
@@ -226,7 +226,7 @@ def test_runs_without_a_logger(tmp_path):
     )
     assert "Done: 600 frames" in proc.stdout and "Learning curve: None" in proc.stdout
     assert not (run_dir / "logs").exists()
-    ckpt = load_checkpoint(run_dir / "checkpoint.pt")
+    ckpt = load_checkpoint(run_dir / "checkpoint.torchrl")
     assert ckpt["frames"] == 600 and len(ckpt["stats"]["returns"]) > 0
 
 
@@ -252,7 +252,7 @@ def test_sweep_runs_each_job_once_and_a_rerun_starts_no_new_work(
         sweep.append("seed=0")  # replaces the experiment's seeds
     first = subprocess.run(sweep, capture_output=True, text=True, timeout=600)
     assert first.returncode == 0, first.stderr[-3000:]
-    ckpts = sorted(tmp_path.glob("*/checkpoint.pt"))
+    ckpts = sorted(tmp_path.glob("*/checkpoint.torchrl"))
     assert [p.parent.name for p in ckpts] == [
         f"+setting={setting},optim.utd_ratio=0.02,seed={seed}"
         for setting in ("none", "vae")

@@ -68,7 +68,7 @@ def test_every_bonus_runs_end_to_end(tmp_path, bonus):
         assert torch.isfinite(torch.as_tensor(raw)).all()
         assert (scalars / "train" / "loss_critic_int.csv").exists()
         assert list((scalars / "bonus").iterdir()), "bonus-model losses are logged"
-    assert load_checkpoint(run_dir / "checkpoint.pt")["frames"] == 256
+    assert load_checkpoint(run_dir / "checkpoint.torchrl")["frames"] == 256
 
 
 def test_same_seed_same_logs_another_seed_differs(tmp_path, vae_run):
@@ -83,7 +83,7 @@ def test_same_seed_same_logs_another_seed_differs(tmp_path, vae_run):
 def test_killed_and_resumed_run_logs_what_the_uninterrupted_run_logs(tmp_path, vae_run):
     killed_dir = tmp_path / "killed"
     cmd = [sys.executable, str(MAIN), f"hydra.run.dir={killed_dir}", *TINY, *VAE_RUN]
-    killed = kill_after_checkpoint(cmd, killed_dir / "checkpoint.pt", min_frames=256)
+    killed = kill_after_checkpoint(cmd, killed_dir / "checkpoint.torchrl", min_frames=256)
     assert 256 <= killed["frames"] < 1024, "the kill must land mid-run"
     run_recipe(killed_dir, *VAE_RUN)
     assert differing_logs(vae_run, killed_dir) == []
@@ -93,7 +93,7 @@ def test_bad_config_fails_clearly_on_the_command_line(tmp_path):
     proc = run_recipe(tmp_path / "bad", "loss.minibatch_size=1000", check=False)
     assert proc.returncode != 0
     assert "loss.minibatch_size must be an integer in [1, 128]" in proc.stderr
-    assert not (tmp_path / "bad" / "checkpoint.pt").exists()
+    assert not (tmp_path / "bad" / "checkpoint.torchrl").exists()
 
 
 @pytest.mark.parametrize(

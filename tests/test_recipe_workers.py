@@ -72,7 +72,7 @@ def test_a2c_with_two_workers_learns_from_every_batch(a2c_run):
     assert episodes[-1] > 0
     steps, _ = read_scalar_csv(scalars / "eval" / "episode_return.csv")
     assert list(steps) == [256, 512, 768, 1024]
-    ckpt = load_checkpoint(a2c_run / "checkpoint.pt")
+    ckpt = load_checkpoint(a2c_run / "checkpoint.torchrl")
     assert ckpt["frames"] == 1024 and ckpt["collector"]["frames"] == 1024
     assert {"worker0", "worker1"} <= set(ckpt["collector"])
 
@@ -88,7 +88,7 @@ def test_killed_and_resumed_run_with_workers_logs_what_the_uninterrupted_run_log
     killed_dir = tmp_path / "killed"
     cmd = [sys.executable, str(A2C / "main.py"), f"hydra.run.dir={killed_dir}"]
     killed = kill_after_checkpoint(
-        [*cmd, *TINY, *RUN], killed_dir / "checkpoint.pt", min_frames=256
+        [*cmd, *TINY, *RUN], killed_dir / "checkpoint.torchrl", min_frames=256
     )
     assert 256 <= killed["frames"] < 1024, "the kill must land mid-run"
     run_recipe(A2C, killed_dir, *RUN)
@@ -117,7 +117,7 @@ def test_ppo_with_two_workers(tmp_path):
     scalars = run_dir / "logs" / "ppo" / "scalars"
     steps, kl = read_scalar_csv(scalars / "train" / "kl_approx.csv")
     assert list(steps) == [128, 256] and torch.isfinite(torch.as_tensor(kl)).all()
-    assert load_checkpoint(run_dir / "checkpoint.pt")["frames"] == 256
+    assert load_checkpoint(run_dir / "checkpoint.torchrl")["frames"] == 256
 
 
 def _config(*overrides: str):

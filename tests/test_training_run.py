@@ -13,7 +13,6 @@ import torch.utils.deterministic
 from omegaconf import OmegaConf
 
 from common.run import (
-    RNGState,
     RunCounters,
     TrainingRun,
     load_checkpoint,
@@ -69,7 +68,7 @@ def _train(run_dir, total_frames: int, keep: bool = False):
         return None
     counters = RunCounters(frames=0, next_ckpt=128)
     net = torch.nn.Linear(2, 1)
-    run.restore({"progress": counters, "net": net, "rng": RNGState()})
+    run.restore({"progress": counters, "net": net})
     while counters.frames < total_frames:
         counters.frames += 64
         run.log({"train/draw": torch.rand(()).item()}, step=counters.frames)
@@ -83,9 +82,9 @@ def test_a_training_run_saves_periodically_keeps_and_resumes_where_it_stopped(
 ):
     whole, parts = tmp_path / "whole", tmp_path / "parts"
     _train(whole, 512, keep=True)
-    assert load_checkpoint(whole / "checkpoint.pt")["frames"] == 512
+    assert load_checkpoint(whole / "checkpoint.torchrl")["frames"] == 512
     kept = sorted(p.name for p in (whole / "checkpoints").iterdir())
-    assert kept == [f"checkpoint_{n}.pt" for n in (128, 256, 384, 512)]
+    assert kept == [f"checkpoint-{n:012d}.torchrl" for n in (128, 256, 384, 512)]
     assert (whole / "learning_curve.png").exists()
     assert "Done: 512 frames." in capsys.readouterr().out
     # the same run in two parts: the second resumes from the first's checkpoint

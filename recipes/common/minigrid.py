@@ -538,21 +538,21 @@ def load_bonus_model(transform, bonus: str, source: str | os.PathLike) -> int:
     Args:
         transform: the bonus transform of this run.
         bonus (str): ``"vae"`` or ``"icm"``.
-        source: a run directory or its ``checkpoint.pt``.
+        source: a run directory or its checkpoint file.
 
     Returns:
         The number of frames the source run had trained for.
     """
-    from .run import load_checkpoint
+    from .run import find_checkpoint, load_checkpoint
 
-    path = Path(source)
-    path = path / "checkpoint.pt" if path.is_dir() else path
     if bonus not in _BONUS_MODELS:
         raise ValueError(
             f"intrinsic.init_from supports bonus vae or icm, not {bonus!r}."
         )
-    if not path.exists():
-        raise FileNotFoundError(f"intrinsic.init_from: no checkpoint at {path}.")
+    try:
+        path = find_checkpoint(source)
+    except FileNotFoundError as err:
+        raise FileNotFoundError(f"intrinsic.init_from: {err}.") from None
     ckpt = load_checkpoint(path)
     source_bonus = ckpt.get("config", {}).get("bonus")
     if source_bonus != bonus:

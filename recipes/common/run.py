@@ -4,6 +4,22 @@ A recipe's ``main.py`` holds its algorithm; what every run does around it is
 :class:`TrainingRun`: prepare the run directory (resume checks, seeds), restore a
 checkpoint, log, show progress, save periodically and on a stop signal, and end
 with a final checkpoint, a learning curve and a summary.
+
+Checkpoints are TorchRL's (:mod:`torchrl.checkpoint`): a ``Checkpoint`` archive of
+the run's components with the global generators (``GlobalRNGState``, CUDA's
+included) and the frames and config in its manifest, kept copies through
+``CheckpointRotation``. Two things stay here, because the library does not do them:
+
+- the atomic write. ``Checkpoint.save`` over an existing file moves the old one
+  aside, then the new one in: a kill between the two leaves no checkpoint. The run
+  saves to a temporary file of its own and renames it over the previous one.
+- the random generators restored last. ``Checkpoint.load`` restores components
+  in name order; building a run draws random numbers, so they are loaded apart.
+
+Measured on the recipes' states: a checkpoint costs 0.05-0.1 s against 0.01-0.02 s
+for ``torch.save`` (small states; the default TensorDict payload, 0.35 s, is not
+used), and 0.85 s against 0.31 s with a full 1M-transition replay buffer: a
+fraction of a percent of a run between two checkpoints.
 """
 
 from __future__ import annotations
@@ -15,11 +31,11 @@ import logging
 import multiprocessing
 import os
 import random
-import shutil
 import signal
 import sys
 import time
 import types
+import uuid
 from collections import deque
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -28,16 +44,24 @@ from typing import Any, NamedTuple, NoReturn
 import numpy as np
 import torch
 from tensordict import TensorDictBase
+from torchrl.checkpoint import (
+    Checkpoint,
+    CheckpointRotation,
+    GlobalRNGState,
+    StateDictCheckpointAdapter,
+)
 
 __all__ = [
     "BONUS_SECTIONS",
     "RESUMABLE_CHANGES",
     "RESUME_MODES",
-    "Checkpointer",
+    "CHECKPOINT_NAME",
+    "KEPT_CHECKPOINTS",
+    "LEGACY_CHECKPOINT_NAME",
+    "RunCheckpoint",
     "EVAL_SEED_OFFSET",
     "EpisodeStats",
     "Evaluation",
-    "RNGState",
     "RunCounters",
     "StopSignal",
     "TrainingRun",
@@ -49,15 +73,14 @@ __all__ = [
     "truncate_scalar_logs",
     "evaluate",
     "get_run_logger",
-    "get_rng_state",
+    "checkpoint_info",
+    "find_checkpoint",
     "load_checkpoint",
     "prepare_run",
     "register_sweep_pickling",
     "plot_learning_curves",
     "read_scalar_csv",
-    "save_checkpoint",
     "seed_everything",
-    "set_rng_state",
 ]
 
 
@@ -74,49 +97,250 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
-def get_rng_state() -> dict[str, Any]:
-    """The state of the Python, NumPy and torch generators, for a checkpoint."""
-    return {
-        "python": random.getstate(),
-        "numpy": np.random.get_state(),
-        "torch": torch.get_rng_state(),
-    }
+CHECKPOINT_NAME = "checkpoint.torchrl"
+"""A run's latest checkpoint, ``<run dir>/checkpoint.torchrl``: a TorchRL checkpoint
+archive (:class:`torchrl.checkpoint.Checkpoint`, ``format="archive"``)."""
+
+LEGACY_CHECKPOINT_NAME = "checkpoint.pt"
+"""The checkpoint of the recipes' 0.2 release, a ``torch.save`` of a dict; it is
+still resumed and read, and removed once the run has saved its successor."""
+
+KEPT_CHECKPOINTS = "checkpoints"
+"""With ``checkpoint.keep``, every periodic checkpoint is kept in this folder of the
+run directory (:class:`torchrl.checkpoint.CheckpointRotation`'s names,
+``checkpoint-<frames, 12 digits>.torchrl``)."""
 
 
-def set_rng_state(state: Mapping[str, Any]) -> None:
-    """Restores what :func:`get_rng_state` returned.
+def find_checkpoint(run_dir_or_file: str | os.PathLike) -> Path:
+    """The checkpoint file of a run directory (its ``checkpoint.torchrl``, or a 0.2
+    run's ``checkpoint.pt``), or the file itself.
 
-    Examples:
-        >>> state = get_rng_state(); a = torch.rand(2)
-        >>> set_rng_state(state); bool((a == torch.rand(2)).all())
-        True
+    Raises:
+        FileNotFoundError: a directory without either.
     """
-    random.setstate(state["python"])
-    np.random.set_state(state["numpy"])
-    torch.set_rng_state(state["torch"])
+    path = Path(run_dir_or_file)
+    if not path.is_dir():
+        if not path.exists():
+            raise FileNotFoundError(f"no checkpoint at {path}")
+        return path
+    for name in (CHECKPOINT_NAME, LEGACY_CHECKPOINT_NAME):
+        if (path / name).exists():
+            return path / name
+    raise FileNotFoundError(
+        f"no checkpoint in {path} (looked for {CHECKPOINT_NAME} and "
+        f"{LEGACY_CHECKPOINT_NAME})"
+    )
 
 
-def save_checkpoint(path: str | os.PathLike, state: Mapping[str, Any]) -> None:
-    """Writes ``state`` with ``torch.save`` atomically (a kill never leaves half a file).
+def _is_legacy(path: Path) -> bool:
+    return not (path.is_dir() or Checkpoint.is_checkpoint(path))
+
+
+def _load_legacy(path: Path) -> dict[str, Any]:
+    # Pickled RNG states (tuples, NumPy arrays): not weights-only.
+    state = torch.load(path, weights_only=False)
+    rng = state.get("rng")
+    if isinstance(rng, Mapping) and "torch" in rng:  # GlobalRNGState's names
+        state["rng"] = {
+            "python": rng["python"],
+            "numpy": rng["numpy"],
+            "torch_cpu": rng["torch"],
+        }
+    return state
+
+
+def checkpoint_info(path: str | os.PathLike) -> dict[str, Any]:
+    """What a checkpoint says of its run without loading its state: ``frames``
+    and the resolved ``config`` (the manifest's metadata).
 
     Examples:
         >>> import tempfile, os
-        >>> path = os.path.join(tempfile.mkdtemp(), "ckpt.pt")
-        >>> save_checkpoint(path, {"frames": 128})
-        >>> load_checkpoint(path)["frames"]
-        128
+        >>> counters = RunCounters(frames=128)
+        >>> path = os.path.join(tempfile.mkdtemp(), CHECKPOINT_NAME)
+        >>> RunCheckpoint(path, {"progress": counters}, config={"seed": 0}).save()
+        >>> checkpoint_info(path)
+        {'config': {'seed': 0}, 'frames': 128}
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(dict(state), tmp)
-    os.replace(tmp, path)
+    if _is_legacy(path):
+        state = _load_legacy(path)
+        return {"config": state.get("config", {}), "frames": state.get("frames", 0)}
+    metadata = Checkpoint.manifest(path)["metadata"]
+    return {"config": metadata.get("config", {}), "frames": metadata.get("frames", 0)}
+
+
+class _SavedState:
+    """Receives one component's state dict when a checkpoint is read as a dict."""
+
+    def __init__(self):
+        self.state = None
+
+    def state_dict(self):
+        return self.state
+
+    def load_state_dict(self, state) -> None:
+        self.state = state
 
 
 def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
-    """Loads a checkpoint written by :func:`save_checkpoint`."""
-    # Checkpoints hold RNG states (tuples, NumPy arrays): not weights-only.
-    return torch.load(path, weights_only=False)
+    """Every state a checkpoint holds, by component name, with its ``frames`` and
+    ``config``: for tools that read a run (the heatmap, transfer, tests), not for
+    resuming it (:meth:`TrainingRun.restore`). Reads both formats
+    (:data:`CHECKPOINT_NAME`, :data:`LEGACY_CHECKPOINT_NAME`).
+
+    Examples:
+        >>> import tempfile, os
+        >>> net, counters = torch.nn.Linear(2, 2), RunCounters(frames=128)
+        >>> path = os.path.join(tempfile.mkdtemp(), CHECKPOINT_NAME)
+        >>> RunCheckpoint(path, {"net": net, "progress": counters}, config={}).save()
+        >>> state = load_checkpoint(path)
+        >>> state["frames"], sorted(state["net"]), state["progress"]
+        (128, ['bias', 'weight'], {'frames': 128})
+    """
+    path = Path(path)
+    if _is_legacy(path):
+        return _load_legacy(path)
+    manifest = Checkpoint.manifest(path)
+    holders = {name: _SavedState() for name in manifest["components"]}
+    _reader(holders).load(path, tensor_load_kwargs=_UNPICKLE)
+    state = {name: holder.state for name, holder in holders.items()}
+    state.update(checkpoint_info(path))
+    return state
+
+
+def _reader(components: Mapping[str, Any]) -> Checkpoint:
+    # Each state dict is one torch.save payload in the archive: 3 to 7 times
+    # cheaper to write than the default TensorDict payload for the recipes' many
+    # small states. It is read with pickle (_UNPICKLE): the collectors' states
+    # hold TensorDicts and the episode state of envs, which weights-only loading
+    # refuses; so a checkpoint is trusted as the 0.2 torch.save one was.
+    checkpoint = Checkpoint(format="archive")
+    for name, obj in components.items():
+        checkpoint.register(
+            name, obj, adapter=StateDictCheckpointAdapter(payload_format="torch")
+        )
+    return checkpoint
+
+
+_UNPICKLE = {"weights_only": False}
+
+
+class RunCheckpoint:
+    """One mapping of what a run saves, used both to save and to load, written as a
+    TorchRL checkpoint (:class:`torchrl.checkpoint.Checkpoint`).
+
+    Every value is an object with ``state_dict()`` / ``load_state_dict()``
+    (modules, optimisers, transforms, collectors, :class:`RunCounters`); ``None``
+    entries are skipped. The process's random generators (Python, NumPy, torch,
+    CUDA: :class:`torchrl.checkpoint.GlobalRNGState`) are saved as ``"rng"`` and
+    restored after everything else: building the run consumed random numbers.
+
+    Args:
+        path: the checkpoint file (``<run dir>/checkpoint.torchrl``).
+        components: name -> object; ``"progress"`` is the run's
+            :class:`RunCounters` (its ``frames`` go into the manifest).
+        config: the resolved run config, saved in the manifest's metadata so
+            that a resume can refuse a changed experiment (:func:`prepare_run`).
+        keep_dir: where :meth:`save_every` also keeps each periodic checkpoint
+            (:class:`torchrl.checkpoint.CheckpointRotation`, all kept); ``None``
+            (default) keeps only the latest.
+
+    Examples:
+        >>> import tempfile, os
+        >>> net = torch.nn.Linear(2, 2); progress = RunCounters(frames=128)
+        >>> path = os.path.join(tempfile.mkdtemp(), CHECKPOINT_NAME)
+        >>> RunCheckpoint(path, {"net": net, "progress": progress}, config={}).save()
+        >>> other = RunCounters(frames=0)
+        >>> RunCheckpoint(path, {"net": torch.nn.Linear(2, 2), "progress": other},
+        ...               config={}).load(path)
+        >>> other.frames
+        128
+        >>> keep = os.path.join(os.path.dirname(path), KEPT_CHECKPOINTS)
+        >>> progress.next_ckpt = 100
+        >>> RunCheckpoint(path, {"progress": progress}, config={},
+        ...               keep_dir=keep).save_every(100)
+        >>> os.listdir(keep), progress.next_ckpt
+        (['checkpoint-000000000128.torchrl'], 200)
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        components: Mapping[str, Any],
+        config: Mapping[str, Any],
+        keep_dir: str | os.PathLike | None = None,
+    ):
+        self.path = Path(path)
+        self.components = {k: v for k, v in components.items() if v is not None}
+        if "rng" in self.components:
+            raise KeyError("'rng' is the checkpoint's own: the global generators.")
+        self.config = config
+        self._checkpoint = _reader({**self.components, "rng": GlobalRNGState()})
+        self._kept = (
+            None
+            if keep_dir is None
+            else CheckpointRotation(keep_dir, keep_last=sys.maxsize)
+        )
+
+    def _metadata(self) -> dict[str, Any]:
+        # The frame count and config sit in the manifest, readable without
+        # loading the state (checkpoint_info).
+        progress = self.components.get("progress")
+        frames = 0 if progress is None else progress.frames
+        return {"frames": frames, "config": self.config}
+
+    def save(self) -> None:
+        """Writes the checkpoint atomically: to a temporary file of its own, then
+        renamed over the previous one, which a failed write leaves intact."""
+        tmp = self.path.with_name(
+            f".{self.path.name}.{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp"
+        )
+        try:
+            self._checkpoint.save(tmp, metadata=self._metadata())
+            os.replace(tmp, self.path)
+        finally:
+            if tmp.exists():
+                tmp.unlink()
+        legacy = self.path.with_name(LEGACY_CHECKPOINT_NAME)
+        if self.path.name == CHECKPOINT_NAME and legacy.exists():
+            legacy.unlink()  # superseded by the checkpoint just written
+
+    def save_every(self, interval_frames: int) -> None:
+        """Saves when the run's :class:`RunCounters` has passed ``next_ckpt``
+        frames, and moves ``next_ckpt`` on by ``interval_frames``."""
+        progress = self.components["progress"]
+        if progress.frames >= progress.next_ckpt:
+            progress.next_ckpt += interval_frames
+            self.save()
+            if self._kept is not None:
+                self._kept.save(
+                    self._checkpoint, step=progress.frames, metadata=self._metadata()
+                )
+
+    def load(self, path: str | os.PathLike) -> None:
+        """Restores every component from the checkpoint at ``path`` (either format),
+        the random generators last."""
+        path = Path(path)
+        if _is_legacy(path):
+            state = _load_legacy(path)
+            saved = set(state)
+        else:
+            state = None
+            saved = set(Checkpoint.manifest(path)["components"])
+        missing = [name for name in self.components if name not in saved]
+        if missing:
+            raise KeyError(
+                f"{path} holds no {missing}: it was written by another "
+                "version of this recipe, or for another experiment."
+            )
+        if state is not None:
+            for name, obj in self.components.items():
+                obj.load_state_dict(state[name])
+            if "rng" in state:
+                GlobalRNGState().load_state_dict(state["rng"])
+            return
+        for names in (list(self.components), ["rng"]):
+            self._checkpoint.load(path, components=names, tensor_load_kwargs=_UNPICKLE)
 
 
 RESUMABLE_CHANGES: tuple[str, ...] = (
@@ -249,38 +473,44 @@ def prepare_run(cfg, run_dir: str | os.PathLike) -> tuple[Path, dict[str, Any] |
     """What every recipe does first: threads, seeds, resume checks, resolved config.
 
     Sets ``torch.set_num_threads(cfg.torch_threads)`` and seeds with ``cfg.seed``.
-    With ``cfg.resume`` ``auto`` (or ``true``) and a ``<run_dir>/checkpoint.pt``,
-    loads it, refuses it if the experiment changed (:func:`config_differences`,
-    naming each setting; the sections of bonuses the run does not use, from
-    :func:`unused_bonus_sections`, may change), and cuts the CSV logs at the checkpoint's frame so each
-    step stays logged once; without a checkpoint the run starts at frame 0, and the
-    rows a run killed before its first checkpoint left in ``<run_dir>/logs`` go. ``resume=false`` refuses a directory that already holds
-    a checkpoint, so that nothing computed is overwritten. Writes
-    ``config_resolved.yaml`` once the checks pass.
+    With ``cfg.resume`` ``auto`` (or ``true``) and a checkpoint in ``run_dir``
+    (:func:`find_checkpoint`), reads its manifest, refuses it if the experiment
+    changed (:func:`config_differences`, naming each setting; the sections of
+    bonuses the run does not use, from :func:`unused_bonus_sections`, may change),
+    and cuts the CSV logs at the checkpoint's frame so each step stays logged
+    once; without a checkpoint the run starts at frame 0, and the rows a run
+    killed before its first checkpoint left in ``<run_dir>/logs`` go.
+    ``resume=false`` refuses a directory that already holds a checkpoint, so that
+    nothing computed is overwritten. Writes ``config_resolved.yaml`` once the
+    checks pass.
 
     Returns:
-        ``(checkpoint_path, checkpoint or None)``.
+        ``(checkpoint to resume from, its checkpoint_info)``, or
+        ``(<run_dir>/checkpoint.torchrl, None)`` for a new run.
     """
     from omegaconf import OmegaConf
 
     run_dir = Path(run_dir)
-    ckpt_path = run_dir / "checkpoint.pt"
     mode = _resume_mode(cfg.resume)
     torch.set_num_threads(cfg.torch_threads)
     seed_everything(cfg.seed)
     config = OmegaConf.to_container(cfg, resolve=True)
-    ckpt = None
-    if ckpt_path.exists():
+    info = None
+    try:
+        ckpt_path = find_checkpoint(run_dir) if run_dir.is_dir() else None
+    except FileNotFoundError:
+        ckpt_path = None
+    if ckpt_path is not None:
         if mode == "false":
             raise FileExistsError(
                 f"{run_dir} already holds a checkpoint: pass resume=auto to continue "
                 "it, or another hydra.run.dir to start a new run."
             )
-        ckpt = load_checkpoint(ckpt_path)
+        info = checkpoint_info(ckpt_path)
         diffs = config_differences(
-            ckpt["config"],
+            info["config"],
             config,
-            allowed=RESUMABLE_CHANGES + unused_bonus_sections(ckpt["config"]),
+            allowed=RESUMABLE_CHANGES + unused_bonus_sections(info["config"]),
         )
         if diffs:
             raise ValueError(
@@ -290,19 +520,20 @@ def prepare_run(cfg, run_dir: str | os.PathLike) -> tuple[Path, dict[str, Any] |
                 + ", ".join(RESUMABLE_CHANGES)
                 + ". Start a new run directory for a new experiment."
             )
-        truncate_scalar_logs(run_dir / "logs", ckpt["frames"])
+        truncate_scalar_logs(run_dir / "logs", info["frames"])
     elif mode == "true":
         raise FileNotFoundError(
-            f"resume=true but there is no checkpoint at {ckpt_path}; pass the run "
+            f"resume=true but there is no checkpoint in {run_dir}; pass the run "
             "directory of the run to resume as hydra.run.dir=<dir>."
         )
     else:
         # A run killed before its first checkpoint left rows that this run, which
         # starts from frame 0 with the same seed, logs again: drop them.
         truncate_scalar_logs(run_dir / "logs", -1)
+        ckpt_path = run_dir / CHECKPOINT_NAME
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config_resolved.yaml").write_text(OmegaConf.to_yaml(config))
-    return ckpt_path, ckpt
+    return ckpt_path, info
 
 
 class RunCounters:
@@ -325,97 +556,6 @@ class RunCounters:
 
     def load_state_dict(self, state: Mapping[str, int]) -> None:
         self.__dict__.update(state)
-
-
-class RNGState:
-    """The Python, NumPy and torch generators as a checkpointable object."""
-
-    def state_dict(self) -> dict[str, Any]:
-        return get_rng_state()
-
-    def load_state_dict(self, state: Mapping[str, Any]) -> None:
-        set_rng_state(state)
-
-
-class Checkpointer:
-    """One mapping of what a run saves, used both to save and to load.
-
-    Every value is an object with ``state_dict()`` / ``load_state_dict()``
-    (modules, optimisers, transforms, collectors, :class:`RunCounters`,
-    :class:`RNGState`); ``None`` entries are skipped. Loading follows the mapping's
-    order, so put :class:`RNGState` last: building the run consumed random numbers.
-
-    Args:
-        path: the checkpoint file (written atomically).
-        components: name -> object.
-        config: the resolved run config, saved with the state so that a resume
-            can refuse a changed experiment (:func:`prepare_run`).
-        keep_dir: where :meth:`save_every` also keeps each periodic checkpoint,
-            as ``checkpoint_<frames>.pt`` (points of training, for instance for
-            the surprise heatmap); ``None`` (default) keeps only the latest.
-
-    Examples:
-        >>> import tempfile, os
-        >>> net = torch.nn.Linear(2, 2); progress = RunCounters(frames=128)
-        >>> path = os.path.join(tempfile.mkdtemp(), "ckpt.pt")
-        >>> Checkpointer(path, {"net": net, "progress": progress}, config={}).save()
-        >>> other = RunCounters(frames=0)
-        >>> Checkpointer(path, {"net": torch.nn.Linear(2, 2), "progress": other},
-        ...              config={}).load(load_checkpoint(path))
-        >>> other.frames
-        128
-        >>> keep = os.path.join(os.path.dirname(path), "checkpoints")
-        >>> progress.next_ckpt = 100
-        >>> Checkpointer(path, {"progress": progress}, config={},
-        ...              keep_dir=keep).save_every(100)
-        >>> os.listdir(keep), progress.next_ckpt
-        (['checkpoint_128.pt'], 200)
-    """
-
-    def __init__(
-        self,
-        path: str | os.PathLike,
-        components: Mapping[str, Any],
-        config: Mapping[str, Any],
-        keep_dir: str | os.PathLike | None = None,
-    ):
-        self.path = Path(path)
-        self.components = {k: v for k, v in components.items() if v is not None}
-        self.config = config
-        self.keep_dir = None if keep_dir is None else Path(keep_dir)
-
-    def save(self) -> None:
-        state = {name: obj.state_dict() for name, obj in self.components.items()}
-        state["config"] = self.config
-        # The frame count sits at the top level for tools that only read that.
-        progress = self.components.get("progress")
-        if progress is not None:
-            state["frames"] = progress.frames
-        save_checkpoint(self.path, state)
-
-    def save_every(self, interval_frames: int) -> None:
-        """Saves when the run's :class:`RunCounters` has passed ``next_ckpt`` frames,
-        and moves ``next_ckpt`` on by ``interval_frames``."""
-        progress = self.components["progress"]
-        if progress.frames >= progress.next_ckpt:
-            progress.next_ckpt += interval_frames
-            self.save()
-            if self.keep_dir is not None:
-                # the same bytes: a copy of the file save() has just written
-                self.keep_dir.mkdir(parents=True, exist_ok=True)
-                kept = self.keep_dir / f"checkpoint_{progress.frames}.pt"
-                shutil.copyfile(self.path, kept.with_name(kept.name + ".tmp"))
-                os.replace(kept.with_name(kept.name + ".tmp"), kept)
-
-    def load(self, state: Mapping[str, Any]) -> None:
-        missing = [name for name in self.components if name not in state]
-        if missing:
-            raise KeyError(
-                f"{self.path} holds no {missing}: it was written by another "
-                "version of this recipe, or for another experiment."
-            )
-        for name, obj in self.components.items():
-            obj.load_state_dict(state[name])
 
 
 class StopSignal:
@@ -559,7 +699,7 @@ class TrainingRun:
         >>> run_dir = tempfile.mkdtemp()
         >>> run = TrainingRun(cfg, "demo", run_dir=run_dir)
         >>> counters = RunCounters(frames=0, next_ckpt=128)
-        >>> run.restore({"progress": counters, "rng": RNGState()}, show_progress=False)
+        >>> run.restore({"progress": counters}, show_progress=False)
         >>> for _ in range(2):
         ...     counters.frames += 128
         ...     run.log({"train/x": 1.0}, step=counters.frames)
@@ -586,11 +726,13 @@ class TrainingRun:
         self.cfg = cfg
         self.name = name
         self.run_dir = Path(run_dir)
-        self.checkpoint_path, self.resumed_from = prepare_run(cfg, self.run_dir)
+        # the checkpoint to resume from (None: a new run) and what it says
+        source, self.resumed_from = prepare_run(cfg, self.run_dir)
+        self._source = source if self.resumed_from else None
         self.logger = None
         self.progress_bar = None
         self.counters: RunCounters | None = None
-        self._checkpointer: Checkpointer | None = None
+        self._checkpoint: RunCheckpoint | None = None
         self._stop: StopSignal | None = None
         self._on_exit: Sequence[Any] = ()
 
@@ -614,9 +756,9 @@ class TrainingRun:
 
         Args:
             components: what a checkpoint holds, name -> object with
-                ``state_dict()`` / ``load_state_dict()`` (:class:`Checkpointer`);
-                ``"progress"`` is the run's :class:`RunCounters` (``frames``,
-                ``next_ckpt``), and :class:`RNGState` comes last.
+                ``state_dict()`` / ``load_state_dict()`` (:class:`RunCheckpoint`,
+                which adds the random generators); ``"progress"`` is the run's
+                :class:`RunCounters` (``frames``, ``next_ckpt``).
             on_exit: callables run before the process exits on a stop request,
                 and at :meth:`finish` (the collector's ``shutdown``).
             show_progress: draw a progress bar; default: unless in a sweep
@@ -624,16 +766,16 @@ class TrainingRun:
         """
         cfg = self.cfg
         self.counters = components["progress"]
-        self._checkpointer = Checkpointer(
-            self.checkpoint_path,
+        self._checkpoint = RunCheckpoint(
+            self.run_dir / CHECKPOINT_NAME,
             components,
             config=_resolved(cfg),
-            keep_dir=self.run_dir / "checkpoints"
+            keep_dir=self.run_dir / KEPT_CHECKPOINTS
             if cfg.checkpoint.get("keep", False)
             else None,
         )
-        if self.resumed_from:
-            self._checkpointer.load(self.resumed_from)
+        if self._source is not None:
+            self._checkpoint.load(self._source)
         self.logger = get_run_logger(
             cfg.logger.backend, self.run_dir, self.name, cfg.logger.project_name
         )
@@ -669,10 +811,10 @@ class TrainingRun:
         with status ``128 + signal`` (:func:`_exit_process`)."""
         frames = self.counters.frames
         self.progress_bar.update(frames - self.progress_bar.n)
-        self._checkpointer.save_every(self.cfg.checkpoint.interval_frames)
+        self._checkpoint.save_every(self.cfg.checkpoint.interval_frames)
         if not self._stop:
             return
-        self._checkpointer.save()
+        self._checkpoint.save()
         self.progress_bar.close()
         for close in self._on_exit:
             close()
@@ -702,7 +844,7 @@ class TrainingRun:
         """
         self._stop.restore()
         self.progress_bar.close()
-        self._checkpointer.save()
+        self._checkpoint.save()
         for close in self._on_exit:
             close()
         curve = plot_run_curves(

@@ -58,7 +58,6 @@ from utils import (
 from common.run import (
     EVAL_SEED_OFFSET,
     EpisodeStats,
-    RNGState,
     RunCounters,
     TrainingRun,
     evaluate,
@@ -126,8 +125,8 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
     # acts at random up to init_random_frames) from its own saved frame count, so
     # it is built for the whole run.
     collector = make_collector(env, policy, cfg)
-    # What a checkpoint holds, saved and loaded from this one mapping (RNG last:
-    # building the run above drew random numbers); restored when resuming.
+    # What a checkpoint holds, saved and loaded from this one mapping (with the
+    # random generators, restored last); restored when resuming.
     run.restore(
         {
             "progress": progress,
@@ -146,7 +145,6 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
             "collector": collector,
             "stats": stats,
             "pending_logs": pending,
-            "rng": RNGState(),
         },
         on_exit=[collector.shutdown],
     )

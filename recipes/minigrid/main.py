@@ -58,7 +58,6 @@ from common.minigrid import (
 from common.run import (
     EVAL_SEED_OFFSET,
     EpisodeStats,
-    RNGState,
     RunCounters,
     TrainingRun,
     evaluate,
@@ -134,8 +133,8 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
     collector = make_collector(
         env, policy, cfg, total_frames=cfg.collector.total_frames
     )
-    # What a checkpoint holds, saved and loaded from this one mapping (RNG last:
-    # building the run above drew random numbers); restored when resuming.
+    # What a checkpoint holds, saved and loaded from this one mapping (with the
+    # random generators, restored last); restored when resuming.
     run.restore(
         {
             "progress": progress,
@@ -148,7 +147,6 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
             "stats": stats,
             # PPO: the minibatch order of the next update's first epoch, drawn already
             "minibatch_sampler": None if buffer is None else buffer.sampler,
-            "rng": RNGState(),
         },
         on_exit=[collector.shutdown],
     )

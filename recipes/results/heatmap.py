@@ -13,11 +13,10 @@ rendered grid, one panel per checkpoint (points of training)::
         [--open-doors] [--reduce max|mean] [--directions] [--shared-scale] \\
         [--memory-steps K [K ...]]
 
-A run directory (written by ``recipes/a2c_minigrid/main.py`` or
-``recipes/ppo_minigrid/main.py`` with ``bonus=vae``) is read through its
-``checkpoint.pt``; a run keeps only its latest checkpoint, so
-to compare points of training copy checkpoints aside while it runs and pass the
-files. The env and the VAE are rebuilt from the checkpoint's config.
+A run directory (written by ``recipes/minigrid/main.py`` with ``bonus=vae``) is
+read through its latest checkpoint, ``checkpoint.torchrl`` (a 0.2 run's
+``checkpoint.pt`` is read too); to compare points of training, run with
+``checkpoint.keep=true`` and pass the files it keeps under ``checkpoints/``. The env and the VAE are rebuilt from the checkpoint's config.
 
 **Episodic bonus.** The elliptical bonus (``intrinsic.vae.variant=elliptical``)
 of a state depends on the states before it in the episode: each cell is scored
@@ -558,8 +557,8 @@ def load_bonus_transform(run_dir_or_ckpt: str | os.PathLike):
     """The VAE bonus transform of an A2C-MiniGrid run, as the recipe built it.
 
     Args:
-        run_dir_or_ckpt: a run directory (its ``checkpoint.pt`` is read) or a
-            checkpoint file.
+        run_dir_or_ckpt: a run directory (its ``checkpoint.torchrl``, or a 0.2
+            run's ``checkpoint.pt``, is read) or a checkpoint file (either).
 
     Returns:
         ``(transform, config, frames)``: the transform with the checkpoint's
@@ -587,17 +586,17 @@ def load_bonus_transform(run_dir_or_ckpt: str | os.PathLike):
         ('VAESurpriseTransform', 128, True)
     """
     from common.minigrid import VAE_VARIANTS, vae_variant_kwargs
-    from common.run import load_checkpoint
+    from common.run import find_checkpoint, load_checkpoint
     from torchrl_surprise import StateVAE
 
     path = Path(run_dir_or_ckpt)
-    ckpt_path = path / "checkpoint.pt" if path.is_dir() else path
-    if not ckpt_path.is_file():
+    try:
+        ckpt_path = find_checkpoint(path)
+    except FileNotFoundError as err:
         raise FileNotFoundError(
-            f"{path}: no checkpoint found (looked for {ckpt_path}). Pass a run "
-            "directory of recipes/a2c_minigrid/main.py that has saved a checkpoint, "
-            "or a checkpoint file."
-        )
+            f"{err}. Pass a run directory of recipes/minigrid/main.py that has "
+            "saved a checkpoint, or a checkpoint file."
+        ) from None
     ckpt = load_checkpoint(ckpt_path)
     config = ckpt.get("config") if isinstance(ckpt, Mapping) else None
     if not isinstance(config, Mapping):
@@ -1038,7 +1037,7 @@ def _parser() -> argparse.ArgumentParser:
         "runs",
         nargs="*",
         metavar="RUN_DIR_OR_CKPT",
-        help="run directories (their checkpoint.pt) or checkpoint files",
+        help="run directories (their latest checkpoint) or checkpoint files",
     )
     parser.add_argument(
         "--checkpoint",
