@@ -32,6 +32,7 @@ import multiprocessing
 import os
 import random
 import signal
+import socket
 import sys
 import time
 import types
@@ -58,6 +59,9 @@ __all__ = [
     "CHECKPOINT_NAME",
     "KEPT_CHECKPOINTS",
     "LEGACY_CHECKPOINT_NAME",
+    "LOCK_NAME",
+    "RunDirInUse",
+    "RunLock",
     "RunCheckpoint",
     "EVAL_SEED_OFFSET",
     "EpisodeStats",
@@ -463,7 +467,7 @@ def truncate_scalar_logs(log_dir: str | os.PathLike, max_step: int) -> int:
         ]
         if len(kept) != len(rows):
             removed += len(rows) - len(kept)
-            tmp = path.with_name(path.name + ".tmp")
+            tmp = path.with_name(f".{path.name}.{os.getpid()}-{uuid.uuid4().hex[:8]}")
             tmp.write_text("".join(kept))
             os.replace(tmp, path)
     return removed
@@ -663,6 +667,75 @@ def register_sweep_pickling(*modules: types.ModuleType) -> None:
     copyreg.pickle(type(torch.utils.deterministic), _pickle_module_by_name)
 
 
+LOCK_NAME = "run.lock"
+"""The lock file of a run directory: ``<pid> <host>`` of the process that owns it."""
+
+
+class RunDirInUse(RuntimeError):
+    """Another live process owns the run directory (:class:`RunLock`)."""
+
+
+class RunLock:
+    """Makes one process at a time the owner of a run directory.
+
+    An exclusive ``fcntl.flock`` on ``<run_dir>/run.lock``, which holds the owner's
+    pid and host. The kernel releases the lock when its process ends, however it
+    ends (a SIGKILL, a node's crash), so a dead run never leaves the directory
+    stuck; the pid and host in the file only name the owner in the message.
+
+    Args:
+        run_dir: the run directory (created if absent).
+
+    Raises:
+        RunDirInUse: another process holds the lock; the message names the
+            directory and that process.
+
+    Examples:
+        >>> import tempfile
+        >>> run_dir = tempfile.mkdtemp()
+        >>> lock = RunLock(run_dir)
+        >>> lock.holder() == f"process {os.getpid()} on {socket.gethostname()}"
+        True
+        >>> lock.release()
+    """
+
+    def __init__(self, run_dir: str | os.PathLike):
+        import fcntl
+
+        self.path = Path(run_dir) / LOCK_NAME
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._fd = None
+        self._fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = self.holder()
+            self.release()
+            raise RunDirInUse(
+                f"{self.path.parent} is in use by {holder}: one process at a time "
+                "runs in a run directory. Wait for that run to end (or stop it), or "
+                "pass another hydra.run.dir."
+            ) from None
+        os.ftruncate(self._fd, 0)
+        os.pwrite(self._fd, f"{os.getpid()} {socket.gethostname()}\n".encode(), 0)
+
+    def holder(self) -> str:
+        """``"process <pid> on <host>"``, as the lock file says."""
+        try:
+            pid, host = self.path.read_text().split()[:2]
+        except (OSError, ValueError):
+            return "another process"
+        return f"process {pid} on {host}"
+
+    def release(self) -> None:
+        """Releases the lock (the process's end does it as well)."""
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+    __del__ = release
+
+
 _RECIPES_DIR = str(Path(__file__).resolve().parents[1])
 
 
@@ -726,6 +799,17 @@ class TrainingRun:
         self.cfg = cfg
         self.name = name
         self.run_dir = Path(run_dir)
+        self.resumed_from = None
+        self._skipped = ""
+        try:
+            # this process owns the run directory until it ends
+            self._lock = RunLock(self.run_dir)
+        except RunDirInUse as err:
+            if not _in_sweep():
+                raise
+            # a rerun sweep leaves the job another sweep is running to it
+            self._skipped = f"Skipped: {err}"
+            return
         # the checkpoint to resume from (None: a new run) and what it says
         source, self.resumed_from = prepare_run(cfg, self.run_dir)
         self._source = source if self.resumed_from else None
@@ -738,10 +822,15 @@ class TrainingRun:
 
     def nothing_to_do(self) -> bool:
         """Whether the checkpoint already holds ``collector.total_frames`` frames
-        (a finished run in a rerun sweep), saying so."""
+        (a finished run in a rerun sweep), or another sweep runs this job, saying
+        so."""
+        if self._skipped:
+            print(self._skipped)
+            return True
         frames = 0 if self.resumed_from is None else self.resumed_from["frames"]
         if frames < self.cfg.collector.total_frames:
             return False
+        self._lock.release()
         print(f"Nothing to do: {frames} frames already done in {self.run_dir}.")
         return True
 
@@ -858,6 +947,7 @@ class TrainingRun:
             f"Done: {summary}\nLearning curve: {curve}\n"
             f"Logs: {self.run_dir / 'logs'}\nRun directory: {self.run_dir}"
         )
+        self._lock.release()
         return curve
 
 
