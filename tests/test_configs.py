@@ -1,17 +1,36 @@
-"""Every sweep job of the recipes' experiment files composes into a config that the
-recipe accepts, with the setting it is labelled by (no run: Hydra's compose API)."""
+"""The recipes' configs: every sweep job of the experiment files composes on its
+recipe's schema and validates, with the setting it is labelled by; a bad value is
+refused before a run starts, naming the setting by its full key and what it expects
+(in-process through Hydra's compose API; one run from the command line)."""
 
 from __future__ import annotations
 
+import ast
+import inspect
 import itertools
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
-from _recipe_run import load_recipe_utils
 from hydra import compose, initialize_config_dir
+from hydra.errors import ConfigCompositionException
 from omegaconf import OmegaConf
 
+import common.config
+from common.config import (
+    DDPGConfig,
+    MiniGridConfig,
+    Normalization,
+    VAEVariant,
+    validate_ddpg,
+    validate_minigrid,
+)
+from common.minigrid import VAE_VARIANTS
+from torchrl_surprise.transforms import NORMALIZATIONS
+
 RECIPES = Path(__file__).resolve().parents[1] / "recipes"
+VALIDATE = {"minigrid": validate_minigrid, "ddpg_mujoco": validate_ddpg}
 EXPERIMENTS = [
     (
         recipe,
@@ -20,10 +39,12 @@ EXPERIMENTS = [
     for recipe in ("minigrid", "ddpg_mujoco")
     for path in sorted((RECIPES / recipe / "experiment").glob("**/*.yaml"))
 ]
-
-
-def recipe_check(recipe: str):
-    return load_recipe_utils(RECIPES / recipe).check_config
+# The recipe, and the learner for MiniGrid.
+RECIPE_RUNS = {
+    "a2c": ("minigrid", ["algo=a2c"]),
+    "ppo": ("minigrid", ["algo=ppo"]),
+    "ddpg": ("ddpg_mujoco", []),
+}
 
 
 def sweep_values(value) -> list[str]:
@@ -33,9 +54,25 @@ def sweep_values(value) -> list[str]:
     return text.split(",")
 
 
+def composed(recipe: str, overrides: list[str]):
+    with initialize_config_dir(config_dir=str(RECIPES / recipe), version_base=None):
+        return compose("config", overrides=overrides)
+
+
+def refusal(recipe: str, overrides: list[str]) -> str:
+    """What refuses a config, as Hydra composes it or as the recipe validates it:
+    the message, with the cause of a composition error (where Hydra names the key)."""
+    try:
+        VALIDATE[recipe](composed(recipe, overrides))
+    except ConfigCompositionException as err:
+        return f"{err}\n{err.__cause__}"
+    except ValueError as err:
+        return str(err)
+    pytest.fail(f"{recipe} accepted {overrides}")
+
+
 @pytest.mark.parametrize(("recipe", "experiment"), EXPERIMENTS)
-def test_every_sweep_job_composes_and_passes_the_recipe_checks(recipe, experiment):
-    check_config = recipe_check(recipe)
+def test_every_sweep_job_composes_and_validates(recipe, experiment):
     with initialize_config_dir(config_dir=str(RECIPES / recipe), version_base=None):
         base = [f"+experiment={experiment}"]
         sweep = compose("config", overrides=base, return_hydra_config=True)
@@ -47,7 +84,7 @@ def test_every_sweep_job_composes_and_passes_the_recipe_checks(recipe, experimen
                 "config", overrides=[*base, *(f"{k}={v}" for k, v in job.items())]
             )
             OmegaConf.to_container(cfg, resolve=True)  # every interpolation resolves
-            check_config(cfg)
+            VALIDATE[recipe](cfg)
             assert cfg.experiment_name == experiment.split("/")[-1]
             if "+setting" in job:
                 assert cfg.setting == job["+setting"], "a setting file's label"
@@ -59,27 +96,325 @@ def test_every_sweep_job_composes_and_passes_the_recipe_checks(recipe, experimen
                 assert "variant:" in text, f"{path.name} must name its VAE variant"
 
 
-@pytest.mark.parametrize("algo", ["a2c", "ppo"])
+@pytest.mark.parametrize("schema", [MiniGridConfig, DDPGConfig])
+def test_the_schemas_hold_no_values_only_types(schema):
+    # The values and their reasons live in config.yaml: a default here would compete.
+    def leaves(node, prefix=""):
+        for key in node:
+            if OmegaConf.is_missing(node, key):
+                continue
+            value = node[key]
+            if OmegaConf.is_dict(value):
+                yield from leaves(value, f"{prefix}{key}.")
+            else:
+                yield f"{prefix}{key}"
+
+    assert list(leaves(OmegaConf.structured(schema))) == []
+
+
+def test_the_typed_choices_are_the_builders():
+    assert set(VAEVariant) == set(VAE_VARIANTS)
+    assert tuple(Normalization) == NORMALIZATIONS
+
+
+def test_every_setting_is_documented():
+    # As CleanRL's Args: a docstring under each field says what it is and its range.
+    tree = ast.parse(inspect.getsource(common.config))
+    undocumented = []
+    for cls in (n for n in tree.body if isinstance(n, ast.ClassDef)):
+        if not any(getattr(d, "id", None) == "dataclass" for d in cls.decorator_list):
+            continue
+        for stmt, after in zip(cls.body, [*cls.body[1:], None]):
+            if not isinstance(stmt, ast.AnnAssign):
+                continue
+            if isinstance(stmt.value, ast.Call) and stmt.value.func.id == "section":
+                continue  # a section: its class has the docstring
+            documented = isinstance(after, ast.Expr) and isinstance(
+                after.value, ast.Constant
+            )
+            if not documented:
+                undocumented.append(f"{cls.name}.{stmt.target.id}")
+    assert undocumented == []
+
+
+# (override, the message that refuses it): the values each recipe must refuse by
+# type, by range or as not finite, before anything is built.
+BAD_VALUES = {
+    "seed=abc": "Value 'abc' of type 'str' could not be converted to Integer\n"
+    "    full_key: seed",
+    "intrinsic.vae.latent_dim=0": "intrinsic.vae.latent_dim must be an integer > 0, "
+    "got 0.",
+    "env.num_envs=2.5": "Value '2.5' of type 'float' could not be converted to "
+    "Integer\n    full_key: env.num_envs",
+    "collector.frames_per_env=8.5": "Value '8.5' of type 'float' could not be "
+    "converted to Integer\n    full_key: collector.frames_per_env",
+    "intrinsic.update_steps=1.5": "Value '1.5' of type 'float' could not be "
+    "converted to Integer\n    full_key: intrinsic.update_steps",
+    "intrinsic.coef_end=nan": "intrinsic.coef_end must be a finite number or null, "
+    "got nan.",
+    "optim.lr=inf": "optim.lr must be a finite number > 0, got inf.",
+    "optim.max_grad_norm=nan": "optim.max_grad_norm must be a finite number > 0, "
+    "got nan.",
+    "loss.entropy_coef=nan": "loss.entropy_coef must be a finite number >= 0, got nan.",
+    "logger.backend=foo": "logger.backend must be one of 'csv', 'tensorboard', "
+    "'wandb', 'mlflow', '', got 'foo'.",
+    # DDPG's counterparts of MiniGrid's settings
+    "collector.frames_per_batch=8.5": "Value '8.5' of type 'float' could not be "
+    "converted to Integer\n    full_key: collector.frames_per_batch",
+    "optim.actor_lr=inf": "optim.actor_lr must be a finite number > 0, got inf.",
+    "optim.critic_lr=nan": "optim.critic_lr must be a finite number > 0, got nan.",
+}
+MINIGRID_ONLY = {
+    "collector.frames_per_env=8.5",
+    "intrinsic.update_steps=1.5",
+    "optim.lr=inf",
+    "optim.max_grad_norm=nan",
+    "loss.entropy_coef=nan",
+}
+DDPG_ONLY = {
+    "collector.frames_per_batch=8.5",
+    "optim.actor_lr=inf",
+    "optim.critic_lr=nan",
+}
+
+
+@pytest.mark.parametrize("run", list(RECIPE_RUNS))
+@pytest.mark.parametrize("override", list(BAD_VALUES))
+def test_a_bad_value_is_refused_naming_its_setting(run, override):
+    recipe, base = RECIPE_RUNS[run]
+    message = refusal(recipe, [*base, override])
+    if override in (MINIGRID_ONLY if recipe == "ddpg_mujoco" else DDPG_ONLY):
+        # not a setting of this recipe: refused as such
+        key = override.split("=")[0]
+        assert f"Could not override '{key}'" in message
+        assert f"full_key: {key}" in message
+        return
+    assert BAD_VALUES[override] in message
+
+
 @pytest.mark.parametrize(
-    ("overrides", "message"),
+    ("run", "override", "message"),
     [
-        (["intrinsic.update_every=0"], "intrinsic.update_every must be a positive"),
-        (["intrinsic.update_every=1.5"], "intrinsic.update_every must be a positive"),
+        *(
+            (run, override, message)
+            for run in ("a2c", "ppo")
+            for override, message in [
+                (
+                    "bonus=banana",
+                    "Invalid value 'banana', expected one of [none, vae, icm, rnd]\n"
+                    "    full_key: bonus",
+                ),
+                (
+                    "algo.name=sac",
+                    "Invalid value 'sac', expected one of [a2c, ppo]\n"
+                    "    full_key: algo.name",
+                ),
+                (
+                    "optim.name=sgd",
+                    "Invalid value 'sgd', expected one of [rmsprop, adam]\n"
+                    "    full_key: optim.name",
+                ),
+                (
+                    "intrinsic.normalization=median",
+                    "Invalid value 'median', expected one of [none, reward_std, "
+                    "return_std, zscore]\n    full_key: intrinsic.normalization",
+                ),
+                (
+                    "intrinsic.vae.variant=novelty",
+                    "Invalid value 'novelty', expected one of [kl, neg_elbo, "
+                    "info_gain, lagged_kl, elliptical]\n"
+                    "    full_key: intrinsic.vae.variant",
+                ),
+                (
+                    "intrinsic.vae.global_bonus=rnd",
+                    "Invalid value 'rnd', expected one of [none, kl]\n"
+                    "    full_key: intrinsic.vae.global_bonus",
+                ),
+                (
+                    "env.backend=atari",
+                    "Invalid value 'atari', expected one of [gymnasium, envpool]\n"
+                    "    full_key: env.backend",
+                ),
+                (
+                    "resume=maybe",
+                    "resume must be one of auto, true, false (any case), got 'maybe'.",
+                ),
+                ("env.stochasticity=4", "env.stochasticity must be one of 0, 1, 2, 3"),
+                (
+                    "collector.total_frames=-5",
+                    "collector.total_frames must be an integer > 0, got -5.",
+                ),
+                ("loss.gamma=1.5", "loss.gamma must be a finite number in [0, 1]"),
+                (
+                    "loss.normalize_advantage=maybe",
+                    "Value 'maybe' is not a valid bool (type str)\n"
+                    "    full_key: loss.normalize_advantage",
+                ),
+                ("loss.epochs=0", "loss.epochs must be an integer > 0, got 0."),
+                (
+                    "loss.clip_epsilon=0",
+                    "loss.clip_epsilon must be a finite number > 0, got 0.0.",
+                ),
+                (
+                    "intrinsic.coef=inf",
+                    "intrinsic.coef must be a finite number, got inf.",
+                ),
+                (
+                    "intrinsic.warmup_frames=-1",
+                    "intrinsic.warmup_frames must be an integer >= 0, got -1.",
+                ),
+                (
+                    "intrinsic.update_every=0",
+                    "intrinsic.update_every must be an integer > 0, got 0.",
+                ),
+                (
+                    "intrinsic.update_every=1.5",
+                    "full_key: intrinsic.update_every",
+                ),
+                (
+                    "intrinsic.clip=0",
+                    "intrinsic.clip must be a finite number > 0 or null, got 0.0.",
+                ),
+                (
+                    "env.typo=1",
+                    "Key 'typo' not in 'MiniGridEnvConfig'\n    full_key: env.typo",
+                ),
+                # rules between settings
+                (
+                    "collector.workers=3",
+                    "env.num_envs (16) must be a multiple of collector.workers (3)",
+                ),
+                (
+                    "collector.workers=0",
+                    "collector.workers must be an integer > 0, got 0.",
+                ),
+                (
+                    "bonus=rnd collector.workers=2",
+                    "Run bonus=rnd with collector.workers=1",
+                ),
+                (
+                    "bonus=vae intrinsic.vae.variant=info_gain "
+                    "intrinsic.update_every=2",
+                    "set intrinsic.update_every=1 (got 2)",
+                ),
+                (
+                    "bonus=vae intrinsic.vae.variant=lagged_kl "
+                    "intrinsic.update_every=4",
+                    "set intrinsic.update_every=1 (got 4)",
+                ),
+                (
+                    "bonus=rnd intrinsic.init_from=runs/x",
+                    "bonus must be vae or icm with it, got bonus=rnd.",
+                ),
+            ]
+        ),
         (
-            [
-                "bonus=vae",
-                "intrinsic.vae.variant=info_gain",
-                "intrinsic.update_every=2",
-            ],
-            "set intrinsic.update_every=1",
+            "ppo",
+            "loss.minibatch_size=4096",
+            "loss.minibatch_size must be an integer in [1, 2048] (env.num_envs * "
+            "collector.frames_per_env, the collected batch), got 4096.",
+        ),
+        *(
+            ("ddpg", override, message)
+            for override, message in [
+                (
+                    "bonus=banana",
+                    "Invalid value 'banana', expected one of [none, vae]\n"
+                    "    full_key: bonus",
+                ),
+                ("resume=maybe", "resume must be one of auto, true, false"),
+                (
+                    "intrinsic.bonus_at=never",
+                    "Invalid value 'never', expected one of [sample, collection]\n"
+                    "    full_key: intrinsic.bonus_at",
+                ),
+                (
+                    "intrinsic.normalization=median",
+                    "Invalid value 'median', expected one of [none, reward_std, "
+                    "return_std, zscore]\n    full_key: intrinsic.normalization",
+                ),
+                (
+                    "exploration.noise=pink",
+                    "Invalid value 'pink', expected one of [gaussian, ou]\n"
+                    "    full_key: exploration.noise",
+                ),
+                (
+                    "loss.delay_actor=maybe",
+                    "Value 'maybe' is not a valid bool (type str)\n"
+                    "    full_key: loss.delay_actor",
+                ),
+                (
+                    "collector.total_frames=-5",
+                    "collector.total_frames must be an integer > 0, got -5.",
+                ),
+                (
+                    "collector.init_random_frames=-1",
+                    "collector.init_random_frames must be an integer >= 0, got -1.",
+                ),
+                ("optim.batch_size=0", "optim.batch_size must be an integer > 0"),
+                ("optim.tau=0", "optim.tau must be a finite number in (0, 1]"),
+                ("optim.gamma=-0.1", "optim.gamma must be a finite number in [0, 1]"),
+                ("intrinsic.coef=nan", "intrinsic.coef must be a finite number"),
+                ("obs_norm.clip=-1", "obs_norm.clip must be a finite number > 0"),
+                (
+                    "network.hidden_sizes=[256,0]",
+                    "network.hidden_sizes[1] must be an integer > 0, got 0.",
+                ),
+                # rules between settings
+                (
+                    "intrinsic.normalization=return_std",
+                    "return_std needs whole trajectories",
+                ),
+                (
+                    "collector.total_frames=1500",
+                    "collector.total_frames (1500) must be a multiple of "
+                    "collector.frames_per_batch (1000).",
+                ),
+                (
+                    "collector.init_random_frames=500",
+                    "collector.init_random_frames (500) must be a multiple of "
+                    "collector.frames_per_batch (1000).",
+                ),
+                (
+                    "env.num_envs=3",
+                    "collector.frames_per_batch (1000) must be a multiple of "
+                    "env.num_envs (3).",
+                ),
+            ]
         ),
     ],
 )
-def test_a_bonus_model_update_schedule_that_cannot_run_is_refused(
-    algo, overrides, message
-):
-    check_config = recipe_check("minigrid")
-    with initialize_config_dir(config_dir=str(RECIPES / "minigrid"), version_base=None):
-        cfg = compose("config", overrides=[f"algo={algo}", *overrides])
-    with pytest.raises(ValueError, match=message):
-        check_config(cfg)
+def test_a_config_the_recipe_cannot_run_is_refused(run, override, message):
+    recipe, base = RECIPE_RUNS[run]
+    assert message in refusal(recipe, [*base, *override.split()])
+
+
+@pytest.mark.parametrize("run", list(RECIPE_RUNS))
+@pytest.mark.parametrize(
+    "overrides",
+    [
+        ["resume=true"],  # YAML reads a bool: any case of auto, true, false
+        ["resume=False"],
+        ["logger.backend="],  # no logger
+        ["intrinsic.coef_end=0.0", "intrinsic.anneal_frames=1000"],
+        ["intrinsic.clip=null"],
+        ["intrinsic.coef=-0.5"],
+    ],
+)
+def test_the_values_a_recipe_takes_are_accepted(run, overrides):
+    recipe, base = RECIPE_RUNS[run]
+    VALIDATE[recipe](composed(recipe, [*base, *overrides]))
+
+
+def test_a_bad_value_exits_the_script_before_the_run_starts(tmp_path):
+    run_dir = tmp_path / "run"
+    cmd = [
+        sys.executable,
+        str(RECIPES / "minigrid" / "main.py"),
+        f"hydra.run.dir={run_dir}",
+        "optim.lr=inf",
+    ]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert proc.returncode != 0
+    assert "optim.lr must be a finite number > 0, got inf." in proc.stderr
+    assert not run_dir.exists() or not any(run_dir.glob("checkpoint*"))

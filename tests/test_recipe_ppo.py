@@ -1,5 +1,5 @@
-"""The PPO MiniGrid recipe, run end to end as a user runs it (tiny budgets), and its
-config checks in-process."""
+"""The PPO MiniGrid recipe, run end to end as a user runs it (tiny budgets), and a bad
+config refused from the command line (the in-process checks: test_configs.py)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from _recipe_run import differing_logs, kill_after_checkpoint, load_recipe_utils
-from hydra import compose, initialize_config_dir
+from _recipe_run import differing_logs, kill_after_checkpoint
 
 from common.run import load_checkpoint, read_scalar_csv
 
@@ -94,20 +93,3 @@ def test_bad_config_fails_clearly_on_the_command_line(tmp_path):
     assert proc.returncode != 0
     assert "loss.minibatch_size must be an integer in [1, 128]" in proc.stderr
     assert not (tmp_path / "bad" / "checkpoint.torchrl").exists()
-
-
-@pytest.mark.parametrize(
-    "override, message",
-    [
-        ("bonus=banana", "bonus must be one of"),
-        ("loss.epochs=0", "loss.epochs must be a positive integer"),
-        ("loss.clip_epsilon=0", "loss.clip_epsilon must be > 0"),
-        ("intrinsic.normalization=median", "intrinsic.normalization must be one of"),
-    ],
-)
-def test_bad_config_is_refused_before_anything_runs(override, message):
-    utils = load_recipe_utils(RECIPE)
-    with initialize_config_dir(config_dir=str(RECIPE), version_base=None):
-        cfg = compose(config_name="config", overrides=[*TINY, override])
-    with pytest.raises(ValueError, match=message):
-        utils.check_config(cfg)

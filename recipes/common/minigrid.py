@@ -1,4 +1,4 @@
-"""Builders shared by the MiniGrid recipes (A2C, PPO): config checks, envs, the
+"""Builders shared by the MiniGrid recipes (A2C, PPO): envs, the
 rl-starter-files actor-critic, the bonus and its advantage, the collector, and the
 pieces of the training loop both recipes run alike (the bonus model's update, the
 rollout metrics, the evaluation).
@@ -10,7 +10,6 @@ imported by the recipes only.
 from __future__ import annotations
 
 import functools
-import math
 import os
 from pathlib import Path
 
@@ -41,28 +40,19 @@ from torchrl_surprise.collectors import (
 )
 from torchrl_surprise.envs import make_minigrid_env
 from torchrl_surprise.transforms import (
-    NORMALIZATIONS,
     PrecomputedBonusTransform,
     VAEEllipticalTransform,
     VAENegativeELBOTransform,
     VAEPosteriorShiftTransform,
     make_coef_schedule,
 )
-from torchrl_surprise.transforms.stochasticity import (
-    STOCHASTICITY_LEVELS,
-    StochasticityTransform,
-)
-
-from .run import RESUME_MODES
+from torchrl_surprise.transforms.stochasticity import StochasticityTransform
 
 __all__ = [
-    "BONUSES",
     "VAE_VARIANTS",
     "vae_variant_kwargs",
     "MiniGridConvTrunk",
     "bonus_update_steps",
-    "check_config",
-    "check_workers",
     "documented_results",
     "documented_results_message",
     "init_rl_starter",
@@ -76,8 +66,6 @@ __all__ = [
     "shared_trunk",
     "train_bonus_model",
 ]
-
-BONUSES = ("none", "vae", "icm", "rnd")
 
 VAE_VARIANTS = {
     # the paper's bonus: KL(q(z|s) || N(0, I))
@@ -111,91 +99,6 @@ def vae_variant_kwargs(variant: str, vae_cfg) -> dict:
         "ridge": vae_cfg.get("ridge", 0.1),
         "global_bonus": vae_cfg.get("global_bonus", "none"),
     }
-
-
-def check_config(cfg) -> None:
-    """Fails early, naming the value, on a config the recipe cannot run."""
-    variant = cfg.intrinsic.vae.get("variant", "kl")
-    if variant not in VAE_VARIANTS:
-        raise ValueError(
-            f"intrinsic.vae.variant must be one of {tuple(VAE_VARIANTS)}, got "
-            f"{variant!r}."
-        )
-    if cfg.bonus not in BONUSES:
-        raise ValueError(f"bonus must be one of {BONUSES}, got {cfg.bonus!r}.")
-    if cfg.intrinsic.normalization not in NORMALIZATIONS:
-        raise ValueError(
-            f"intrinsic.normalization must be one of {NORMALIZATIONS}, got "
-            f"{cfg.intrinsic.normalization!r}."
-        )
-    if cfg.env.stochasticity not in STOCHASTICITY_LEVELS:
-        raise ValueError(
-            f"env.stochasticity must be one of {sorted(STOCHASTICITY_LEVELS)}, got "
-            f"{cfg.env.stochasticity!r}."
-        )
-    if str(cfg.resume).lower() not in RESUME_MODES:
-        raise ValueError(f"resume must be one of {RESUME_MODES}, got {cfg.resume!r}.")
-    positive = {
-        "env.num_envs": cfg.env.num_envs,
-        "collector.total_frames": cfg.collector.total_frames,
-        "collector.frames_per_env": cfg.collector.frames_per_env,
-        "optim.lr": cfg.optim.lr,
-        "intrinsic.lr": cfg.intrinsic.lr,
-        "eval.interval_frames": cfg.eval.interval_frames,
-        "eval.num_envs": cfg.eval.num_envs,
-        "checkpoint.interval_frames": cfg.checkpoint.interval_frames,
-        "logger.log_interval": cfg.logger.log_interval,
-    }
-    for name, value in positive.items():
-        if not (isinstance(value, (int, float)) and value > 0):
-            raise ValueError(f"{name} must be a positive number, got {value!r}.")
-    if not 0.0 <= cfg.loss.gamma <= 1.0 or not 0.0 <= cfg.loss.gae_lambda <= 1.0:
-        raise ValueError("loss.gamma and loss.gae_lambda must be in [0, 1].")
-    if cfg.intrinsic.update_steps < 0 or cfg.intrinsic.warmup_frames < 0:
-        raise ValueError("intrinsic.update_steps and warmup_frames must be >= 0.")
-    update_every = cfg.intrinsic.get("update_every", 1)
-    if not (isinstance(update_every, int) and update_every > 0):
-        raise ValueError(
-            f"intrinsic.update_every must be a positive integer, got {update_every!r}."
-        )
-    variant = cfg.intrinsic.vae.get("variant") if cfg.bonus == "vae" else None
-    if update_every > 1 and variant in ("info_gain", "lagged_kl"):
-        # info_gain: the change that training on a rollout makes to its states'
-        # posterior; lagged_kl: the copy is refreshed right after a training step,
-        # so with sparse steps it would mostly equal the VAE (a bonus of 0).
-        raise ValueError(
-            f"intrinsic.vae.variant={variant} compares the VAE with itself before "
-            "its last updates, so it trains on every rollout: set "
-            f"intrinsic.update_every=1 (got {update_every})."
-        )
-    if not math.isfinite(cfg.intrinsic.coef):
-        raise ValueError(f"intrinsic.coef must be finite, got {cfg.intrinsic.coef}.")
-    check_workers(cfg)
-
-
-def check_workers(cfg) -> None:
-    """``collector.workers`` (absent from older configs: 1): a positive integer
-    that divides ``env.num_envs``, and 1 with ``bonus=rnd``."""
-    workers = cfg.collector.get("workers", 1)
-    if not (isinstance(workers, int) and workers > 0):
-        raise ValueError(
-            f"collector.workers must be a positive integer, got {workers!r}."
-        )
-    if cfg.env.num_envs % workers:
-        raise ValueError(
-            f"env.num_envs ({cfg.env.num_envs}) must be a multiple of "
-            f"collector.workers ({workers}): each worker process steps "
-            "env.num_envs / collector.workers envs. Change one of them."
-        )
-    if workers > 1 and cfg.bonus == "rnd":
-        raise ValueError(
-            "bonus=rnd runs TorchRL's RNDTransform inside the env, so with "
-            f"collector.workers={workers} each worker process would compute the bonus "
-            "with its own stale copy of the RND predictor and its statistics. Run "
-            "bonus=rnd with collector.workers=1 (the other bonuses are computed on "
-            "the collected batch in the main process and work with any number of "
-            "workers)."
-        )
 
 
 def make_env(cfg, num_envs: int, seed: int, bonus: str = "none", rnd=None):

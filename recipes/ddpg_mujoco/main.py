@@ -46,7 +46,6 @@ from utils import (
     OBS_KEY,
     ObservationNormalizer,
     ScalarMeans,
-    check_config,
     make_bonus,
     make_collector,
     make_ddpg,
@@ -55,6 +54,7 @@ from utils import (
     replay_keys,
 )
 
+from common.config import validate_ddpg
 from common.run import (
     EVAL_SEED_OFFSET,
     EpisodeStats,
@@ -71,7 +71,7 @@ register_sweep_pickling(utils)
 
 @hydra.main(config_path=".", config_name="config", version_base=None)
 def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
-    check_config(cfg)
+    validate_ddpg(cfg)
     # Seeds, resume checks, the checkpoint to resume from (common/run.py)
     run = TrainingRun(cfg, "ddpg")
     if run.nothing_to_do():

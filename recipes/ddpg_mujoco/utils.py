@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import math
-
 import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule, TensorDictSequential
@@ -20,16 +18,12 @@ from torchrl.modules import (
 )
 from torchrl.objectives import DDPGLoss, SoftUpdate
 
-from common.run import RESUME_MODES
 from torchrl_surprise import StateVAE, VAELoss, VAESurpriseTransform
 from torchrl_surprise.collectors import ResumableCollector
 from torchrl_surprise.envs import make_mujoco_env
 from torchrl_surprise.modules.vae import OneDNNLinear
-from torchrl_surprise.transforms import NORMALIZATIONS, make_coef_schedule
+from torchrl_surprise.transforms import make_coef_schedule
 
-BONUSES = ("none", "vae")
-BONUS_AT = ("sample", "collection")
-NOISES = ("gaussian", "ou")
 OBS_KEY = "observation"
 OBS_NORM_KEY = "observation_norm"
 
@@ -44,84 +38,6 @@ REPLAY_KEYS = (
     ("next", "done"),
     ("next", "terminated"),
 )
-
-
-def check_config(cfg) -> None:
-    """Fails early, naming the value, on a config the recipe cannot run."""
-    if cfg.bonus not in BONUSES:
-        raise ValueError(f"bonus must be one of {BONUSES}, got {cfg.bonus!r}.")
-    if str(cfg.resume).lower() not in RESUME_MODES:
-        raise ValueError(f"resume must be one of {RESUME_MODES}, got {cfg.resume!r}.")
-    icfg = cfg.intrinsic
-    if icfg.bonus_at not in BONUS_AT:
-        raise ValueError(
-            f"intrinsic.bonus_at must be one of {BONUS_AT}, got {icfg.bonus_at!r}."
-        )
-    if icfg.normalization not in NORMALIZATIONS:
-        raise ValueError(
-            f"intrinsic.normalization must be one of {NORMALIZATIONS}, got "
-            f"{icfg.normalization!r}."
-        )
-    if icfg.normalization == "return_std" and icfg.bonus_at == "sample":
-        raise ValueError(
-            "intrinsic.normalization=return_std needs whole trajectories (a time "
-            "dimension) and replay samples are single transitions: use it with "
-            "intrinsic.bonus_at=collection, or pick reward_std / zscore / none."
-        )
-    if not isinstance(cfg.loss.delay_actor, bool):
-        raise ValueError(
-            f"loss.delay_actor must be true or false, got {cfg.loss.delay_actor!r}."
-        )
-    if cfg.exploration.noise not in NOISES:
-        raise ValueError(
-            f"exploration.noise must be one of {NOISES}, got {cfg.exploration.noise!r}."
-        )
-    positive = {
-        "env.num_envs": cfg.env.num_envs,
-        "collector.total_frames": cfg.collector.total_frames,
-        "collector.frames_per_batch": cfg.collector.frames_per_batch,
-        "replay_buffer.size": cfg.replay_buffer.size,
-        "optim.batch_size": cfg.optim.batch_size,
-        "optim.utd_ratio": cfg.optim.utd_ratio,
-        "optim.actor_lr": cfg.optim.actor_lr,
-        "optim.critic_lr": cfg.optim.critic_lr,
-        "optim.tau": cfg.optim.tau,
-        "intrinsic.lr": icfg.lr,
-        "intrinsic.batch_size": icfg.batch_size,
-        "intrinsic.update_every": icfg.update_every,
-        "eval.interval_frames": cfg.eval.interval_frames,
-        "eval.episodes": cfg.eval.episodes,
-        "eval.num_envs": cfg.eval.num_envs,
-        "checkpoint.interval_frames": cfg.checkpoint.interval_frames,
-        "logger.log_interval": cfg.logger.log_interval,
-    }
-    for name, value in positive.items():
-        if isinstance(value, bool) or not (
-            isinstance(value, (int, float)) and value > 0
-        ):
-            raise ValueError(f"{name} must be a positive number, got {value!r}.")
-    if cfg.collector.frames_per_batch % cfg.env.num_envs:
-        raise ValueError(
-            f"collector.frames_per_batch ({cfg.collector.frames_per_batch}) must be a "
-            f"multiple of env.num_envs ({cfg.env.num_envs})."
-        )
-    if cfg.collector.init_random_frames < 0 or icfg.warmup_frames < 0:
-        raise ValueError(
-            "collector.init_random_frames and intrinsic.warmup_frames must be >= 0."
-        )
-    # Whole batches only: a resumed run then stops exactly at total_frames.
-    for name in ("total_frames", "init_random_frames"):
-        if cfg.collector[name] % cfg.collector.frames_per_batch:
-            raise ValueError(
-                f"collector.{name} ({cfg.collector[name]}) must be a multiple of "
-                f"collector.frames_per_batch ({cfg.collector.frames_per_batch})."
-            )
-    if not 0.0 <= cfg.optim.gamma <= 1.0 or not cfg.optim.tau <= 1.0:
-        raise ValueError("optim.gamma must be in [0, 1] and optim.tau in (0, 1].")
-    if not math.isfinite(icfg.coef):
-        raise ValueError(f"intrinsic.coef must be finite, got {icfg.coef}.")
-    if cfg.obs_norm.clip is not None and cfg.obs_norm.clip <= 0:
-        raise ValueError(f"obs_norm.clip must be positive, got {cfg.obs_norm.clip}.")
 
 
 def make_env(cfg, num_envs: int, seed: int):

@@ -43,6 +43,7 @@ import torch
 import utils  # the learners beside this script
 
 import common
+from common.config import validate_minigrid
 from common.minigrid import (
     bonus_update_steps,
     documented_results_message,
@@ -71,7 +72,7 @@ register_sweep_pickling(utils, common)
 
 @hydra.main(config_path=".", config_name="config", version_base=None)
 def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
-    utils.check_config(cfg)
+    validate_minigrid(cfg)
     algo = cfg.algo.name
     # Seeds, resume checks, the checkpoint to resume from (common/run.py)
     run = TrainingRun(cfg, algo)

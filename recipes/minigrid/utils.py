@@ -9,10 +9,7 @@ from tensordict import TensorDictBase
 from torchrl.data import LazyTensorStorage, ReplayBuffer, SamplerWithoutReplacement
 from torchrl.objectives import A2CLoss, ClipPPOLoss
 
-from common.minigrid import check_config as check_common
 from common.minigrid import make_advantage
-
-ALGOS = ("a2c", "ppo")
 
 # What the losses return that is logged (means over an update's minibatches).
 LOGGED_LOSSES = {
@@ -26,32 +23,6 @@ LOGGED_LOSSES = {
         "kl_approx",
     ),
 }
-
-
-def check_config(cfg) -> None:
-    """The MiniGrid recipe's checks, and the learner's."""
-    check_common(cfg)
-    if cfg.algo.name not in ALGOS:
-        raise ValueError(f"algo must be one of {ALGOS}, got {cfg.algo.name!r}.")
-    if cfg.optim.name not in ("rmsprop", "adam"):
-        raise ValueError(f"optim.name must be rmsprop or adam, got {cfg.optim.name!r}.")
-    if cfg.algo.name == "a2c":
-        return
-    batch = cfg.env.num_envs * cfg.collector.frames_per_env
-    if not (isinstance(cfg.loss.epochs, int) and cfg.loss.epochs > 0):
-        raise ValueError(
-            f"loss.epochs must be a positive integer, got {cfg.loss.epochs!r}."
-        )
-    size = cfg.loss.minibatch_size
-    if not (isinstance(size, int) and 0 < size <= batch):
-        raise ValueError(
-            f"loss.minibatch_size must be an integer in [1, {batch}] (env.num_envs * "
-            f"collector.frames_per_env, the collected batch), got {size!r}."
-        )
-    if not cfg.loss.clip_epsilon > 0:
-        raise ValueError(
-            f"loss.clip_epsilon must be > 0, got {cfg.loss.clip_epsilon!r}."
-        )
 
 
 def make_loss(cfg, model, intrinsic_value, bonus_transform):
