@@ -394,6 +394,10 @@ class MiniGridEvalConfig(EvalConfig):
 
     deterministic: bool = required()
     """Greedy actions (false: the policy is sampled)."""
+    video: bool = required()
+    """Record the final policy's episodes as a GIF (``common.video``)."""
+    video_episodes: int = required(POSITIVE)
+    """Episodes in that GIF; > 0."""
 
 
 @dataclass

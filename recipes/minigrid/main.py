@@ -64,6 +64,7 @@ from common.run import (
     evaluate,
     register_sweep_pickling,
 )
+from common.video import record_minigrid_video
 
 # Sweep launchers pickle this script's task function for their worker processes,
 # where the modules beside the script are not importable (submitit, Ray).
@@ -261,6 +262,13 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         title=f"{cfg.env.name}: {algo.upper()} + {cfg.bonus} (seed {cfg.seed})",
         ylabel=f"extrinsic return ({cfg.logger.episode_window}-episode mean)",
     )
+    if cfg.eval.video:
+        # The final policy on the evaluation's first episodes, as a GIF (and to a
+        # logger that shows videos); torch's generators are left as they were.
+        video = record_minigrid_video(
+            cfg, policy, run.run_dir, frames, seed=eval_seed, logger=run.logger
+        )
+        print(f"Video: {video}")
     measured = documented_results_message(
         cfg.env.name,
         cfg.collector.total_frames,

@@ -1,0 +1,452 @@
+"""Videos of a trained policy: episodes rendered by gymnasium, written as GIFs.
+
+A recipe's envs do not render (rendering costs more than a MiniGrid step, and
+MuJoCo needs an OpenGL context for it). A video is recorded on a copy of the
+evaluation env that does: the same task built with ``render_mode="rgb_array"``
+under the same TorchRL transforms as the recipe's env (cloned from an env that
+the recipe built, so observations reach the policy exactly as in training and
+the policy runs on it unchanged). One env, one episode after the other; after
+the reset and after every step the gymnasium env's ``render()`` gives a frame.
+
+* :func:`make_minigrid_video_env`, :func:`make_mujoco_video_env`: that env.
+* :func:`record_episodes`: the frames of ``episodes`` episodes of a policy.
+* :func:`write_gif`: the frames as a GIF (Pillow).
+* :func:`log_video`: the frames to a TorchRL logger that takes videos.
+* :func:`record_minigrid_video`: all of it for the MiniGrid recipe's run
+  (``eval.video=true``): ``<run dir>/videos/episode_<frames>.gif``.
+
+Why not TorchRL's ``VideoRecorder``: it records a pixel entry of the
+tensordict, so the env would have to write every frame into its step outputs
+(``PixelRenderTransform``), and it writes only through a logger, whose formats
+are TensorBoard's, W&B's, MLflow's, or the CSV logger's ``.pt``, memmap and mp4
+(the last through torchcodec): no GIF, which would then be written from the
+recorder's frame buffer anyway. Here the frames go to a list, the GIF is written by Pillow (a
+dependency of matplotlib, which the recipes use already; imageio writes GIFs
+through Pillow too), and the logger gets the same frames in the layout
+``log_video`` takes.
+
+A GIF stores a frame that repeats the previous one once, with the two durations
+summed (Pillow does; MiniGrid's ``pickup`` with nothing in front of the agent
+changes nothing): a GIF of an episode of ``T`` steps plays ``T + 1`` frames of
+``1 / fps`` seconds, the reset's and one per step, in fewer stored frames.
+
+MuJoCo renders through OpenGL: without a display, ``MUJOCO_GL=egl`` (or
+``osmesa``) in the environment before Python starts.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+import torch
+from torchrl.envs import EnvBase, TransformedEnv
+
+__all__ = [
+    "DEFAULT_FPS",
+    "VIDEO_DIR",
+    "VideoFrames",
+    "log_video",
+    "make_minigrid_video_env",
+    "make_mujoco_video_env",
+    "record_episodes",
+    "record_minigrid_video",
+    "write_gif",
+]
+
+DEFAULT_FPS = 10
+"""Frames per second of a video: one MiniGrid step every 0.1 s."""
+
+VIDEO_DIR = "videos"
+"""The folder of a run directory that holds its videos."""
+
+
+class VideoFrames(NamedTuple):
+    """The frames of the episodes :func:`record_episodes` ran, one after the other.
+
+    Attributes:
+        frames: ``uint8`` ``[T, H, W, 3]``: for each episode, the frame after its
+            reset and one after each of its steps.
+        steps: the number of steps of each episode; ``T = sum(steps) +
+            len(steps)``.
+        returns: the return of each episode (the env's reward, summed).
+    """
+
+    frames: np.ndarray
+    steps: list[int]
+    returns: list[float]
+
+
+def _render_source(env: EnvBase):
+    """The gymnasium env under ``env`` whose ``render()`` gives its frames."""
+    import gymnasium as gym
+
+    base = env.base_env if isinstance(env, TransformedEnv) else env
+    gym_env = getattr(base, "gym_env", None)
+    if gym_env is None:
+        raise TypeError(
+            "a video is rendered by the gymnasium env under a TorchRL env built by "
+            "torchrl_surprise.envs.make_minigrid_env(backend='gymnasium') or "
+            f"make_mujoco_env; got a {type(base).__name__}, which cannot render "
+            "(envpool's MiniGrid has no renderer). Build the video env with "
+            "make_minigrid_video_env or make_mujoco_video_env."
+        )
+    if isinstance(gym_env, gym.vector.VectorEnv):
+        gym_env = gym_env.envs[0]
+    if gym_env.render_mode != "rgb_array":
+        raise ValueError(
+            f"the env renders with render_mode={gym_env.render_mode!r}; a video "
+            "needs render_mode='rgb_array' (make_minigrid_video_env and "
+            "make_mujoco_video_env build it so)."
+        )
+    return gym_env
+
+
+def _render(gym_env) -> np.ndarray:
+    try:
+        frame = gym_env.render()
+    except Exception as err:
+        # mujoco.FatalError, PyOpenGL's errors, gymnasium's ValueError for a bad
+        # MUJOCO_GL: no common type, one cause
+        if not hasattr(gym_env.unwrapped, "mujoco_renderer"):
+            raise
+        raise RuntimeError(
+            "MuJoCo could not render without a display (MUJOCO_GL="
+            f"{os.environ.get('MUJOCO_GL') or '<unset>'}): set MUJOCO_GL=egl (or "
+            "MUJOCO_GL=osmesa) in the environment before Python starts, e.g. "
+            f"`MUJOCO_GL=egl python ...`. The error was: {err}"
+        ) from err
+    return np.ascontiguousarray(frame, dtype=np.uint8)
+
+
+def record_episodes(
+    env: EnvBase,
+    policy,
+    episodes: int = 1,
+    *,
+    deterministic: bool = False,
+    max_steps: int = 10_000,
+) -> VideoFrames:
+    """Runs ``policy`` for ``episodes`` episodes of ``env``, rendering each step.
+
+    Each episode starts with ``env.reset()`` and ends at its first done
+    (terminated or truncated: MiniGrid's and MuJoCo's time limits end every
+    episode) or after ``max_steps`` steps. The policy acts under
+    ``torch.no_grad()`` with TorchRL's deterministic or random exploration type,
+    as in the recipes' evaluation. Torch's random generators are restored after
+    the episodes, so recording does not change what a run draws next.
+
+    Args:
+        env: one TorchRL env (batch size ``[]`` or ``[1]``) whose gymnasium env
+            renders ``rgb_array`` frames (:func:`make_minigrid_video_env`,
+            :func:`make_mujoco_video_env`).
+        policy: a TorchRL policy for ``env``'s observations.
+        episodes (int): how many episodes to record; > 0.
+        deterministic (bool): ``ExplorationType.DETERMINISTIC`` (else
+            ``RANDOM``: the policy is sampled).
+        max_steps (int): the most steps of one episode.
+
+    Returns:
+        The frames, the steps and the return of each episode.
+
+    Raises:
+        ValueError: ``episodes`` or ``max_steps`` < 1, an env of more than one env,
+            or one that does not render ``rgb_array`` frames.
+        TypeError: an env with no gymnasium env to render (envpool).
+
+    Examples:
+        >>> env = make_minigrid_video_env("MiniGrid-Empty-5x5-v0", seed=0, tile_size=8)
+        >>> video = record_episodes(env, env.rand_action, max_steps=5)
+        >>> video.frames.shape, video.frames.dtype
+        ((6, 40, 40, 3), dtype('uint8'))
+        >>> video.steps
+        [5]
+    """
+    from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
+
+    if episodes < 1 or max_steps < 1:
+        raise ValueError(
+            f"episodes and max_steps must be >= 1, got {episodes} and {max_steps}."
+        )
+    if env.batch_size.numel() != 1:
+        raise ValueError(
+            f"a video is recorded on one env, got batch size {tuple(env.batch_size)}:"
+            " build the env with num_envs=1."
+        )
+    source = _render_source(env)
+    reward_key, done_key = env.reward_key, env.done_keys[0]
+    mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
+    frames, steps, returns = [], [], []
+    with (
+        torch.random.fork_rng(devices=[]),
+        torch.no_grad(),
+        set_exploration_type(mode),
+    ):
+        for _ in range(episodes):
+            td = env.reset()
+            frames.append(_render(source))
+            total, done, count = 0.0, False, 0
+            while not done and count < max_steps:
+                td = env.step(policy(td))
+                frames.append(_render(source))
+                total += td["next", reward_key].sum().item()
+                done = bool(td["next", done_key].any())
+                td = step_mdp(td)
+                count += 1
+            steps.append(count)
+            returns.append(total)
+    return VideoFrames(np.stack(frames), steps, returns)
+
+
+def write_gif(frames, path: str | os.PathLike, fps: int = DEFAULT_FPS) -> Path:
+    """Writes ``frames`` as a GIF that loops, ``1 / fps`` seconds a frame.
+
+    GIF stores durations in hundredths of a second: ``fps`` is rounded to the
+    nearest duration that GIF can store (10 fps: 0.1 s). A frame equal to the
+    one before it is stored once with both durations (Pillow's GIF writer).
+
+    Args:
+        frames: ``uint8`` ``[T, H, W, 3]`` (numpy array or tensor), ``T >= 1``.
+        path: the GIF's path; its folder is created.
+        fps (int): frames per second; > 0.
+
+    Returns:
+        ``path``.
+
+    Raises:
+        ValueError: frames that are not ``uint8`` ``[T, H, W, 3]``, or ``fps <= 0``.
+
+    Examples:
+        >>> import tempfile
+        >>> from PIL import Image
+        >>> frames = np.zeros((3, 4, 4, 3), dtype=np.uint8)
+        >>> frames[1, 0, 0] = 255
+        >>> path = write_gif(frames, Path(tempfile.mkdtemp()) / "a.gif", fps=10)
+        >>> Image.open(path).n_frames  # the third repeats none: all stored
+        3
+    """
+    from PIL import Image
+
+    frames = np.asarray(frames)
+    if frames.dtype != np.uint8 or frames.ndim != 4 or frames.shape[-1] != 3:
+        raise ValueError(
+            "frames must be uint8 [T, H, W, 3] (RGB), got "
+            f"{frames.dtype} {list(frames.shape)}."
+        )
+    if len(frames) == 0:
+        raise ValueError("frames is empty: a GIF needs at least one frame.")
+    if not fps > 0:
+        raise ValueError(f"fps must be > 0, got {fps}.")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    images = [Image.fromarray(frame) for frame in frames]
+    # GIF's unit of time is 10 ms: a duration Pillow would round on writing.
+    duration = max(10, round(100 / fps) * 10)
+    images[0].save(
+        path, save_all=True, append_images=images[1:], duration=duration, loop=0
+    )
+    return path
+
+
+def log_video(
+    logger,
+    frames,
+    *,
+    step: int,
+    fps: int = DEFAULT_FPS,
+    name: str = "eval/video",
+) -> bool:
+    """Hands ``frames`` to a TorchRL logger's ``log_video``, if it takes videos.
+
+    TensorBoard, W&B and MLflow show a video with the run's scalars; TorchRL's
+    ``CSVLogger`` would save the raw frames as a tensor file, many times the
+    size of the GIF beside it, so it is not given the video. A logger that fails
+    on it (TensorBoard without moviepy) leaves a warning: the GIF is the video.
+
+    Args:
+        logger: a :class:`~torchrl.record.loggers.Logger`, or ``None``.
+        frames: ``uint8`` ``[T, H, W, 3]``.
+        step (int): the step to log the video at (the run's frames).
+        fps (int): frames per second.
+        name (str): the video's name in the logger.
+
+    Returns:
+        Whether the logger took the video.
+
+    Examples:
+        >>> import tempfile
+        >>> from torchrl.record.loggers import CSVLogger
+        >>> logger = CSVLogger("demo", log_dir=tempfile.mkdtemp())
+        >>> log_video(logger, np.zeros((2, 4, 4, 3), np.uint8), step=0)
+        False
+    """
+    import warnings
+
+    from torchrl.record.loggers import CSVLogger
+
+    if logger is None or isinstance(logger, CSVLogger):
+        return False
+    # [T, H, W, 3] -> [1, T, 3, H, W], the layout every log_video takes
+    video = torch.as_tensor(np.asarray(frames)).permute(0, 3, 1, 2).unsqueeze(0)
+    try:
+        logger.log_video(name, video, step=step, fps=fps)
+    except Exception as err:  # TorchRL's loggers raise a bare Exception for these
+        warnings.warn(
+            f"{type(logger).__name__} did not take the video ({err}); the GIF "
+            "holds it.",
+            stacklevel=2,
+        )
+        return False
+    return True
+
+
+def _with_transforms_of(base: EnvBase, like: EnvBase | None, seed: int) -> EnvBase:
+    """``base`` under copies of ``like``'s transforms, seeded with ``seed``."""
+    env = base
+    if isinstance(like, TransformedEnv):
+        env = TransformedEnv(base, like.transform.clone())
+    env.set_seed(seed)
+    return env
+
+
+def make_minigrid_video_env(
+    env_name: str,
+    seed: int,
+    *,
+    like: EnvBase | None = None,
+    tile_size: int = 16,
+    env_kwargs: dict[str, Any] | None = None,
+) -> EnvBase:
+    """One MiniGrid env of ``env_name`` that renders, for :func:`record_episodes`.
+
+    Its base is :func:`~torchrl_surprise.envs.make_minigrid_env`'s gymnasium env
+    with ``render_mode="rgb_array"``: minigrid's own frames, the whole grid with
+    the agent's view highlighted, ``tile_size`` pixels a cell. Over it, copies of
+    the transforms of ``like``, an env the recipe built for the task (its noise,
+    its episode statistics), so the policy reads what it reads in training.
+    ``like`` may run on either backend: envpool's MiniGrid, which cannot render,
+    is the same task with the same observations (tests/test_envpool.py), so a
+    policy trained on it is recorded on minigrid's (whose layout for a seed is
+    not envpool's).
+
+    Args:
+        env_name (str): a MiniGrid id.
+        seed (int): the env's seed (the evaluation's, to see its first episode).
+        like: an env whose transforms are copied; ``None``: no transforms.
+        tile_size (int): pixels per grid cell (MultiRoom's 25x25 grid: 400x400).
+        env_kwargs: more keyword arguments for ``gymnasium.make``.
+
+    Returns:
+        A TorchRL env of batch size ``[1]``.
+
+    Examples:
+        >>> env = make_minigrid_video_env("MiniGrid-DoorKey-5x5-v0", seed=0)
+        >>> env.batch_size
+        torch.Size([1])
+        >>> video = record_episodes(env, env.rand_action, max_steps=3)
+        >>> video.frames.shape
+        (4, 80, 80, 3)
+    """
+    from torchrl_surprise.envs import make_minigrid_env
+
+    kwargs = {**(env_kwargs or {}), "render_mode": "rgb_array", "tile_size": tile_size}
+    base = make_minigrid_env(env_name, num_envs=1, env_kwargs=kwargs)
+    return _with_transforms_of(base, like, seed)
+
+
+def make_mujoco_video_env(
+    env_name: str,
+    seed: int,
+    *,
+    like: EnvBase | None = None,
+    width: int = 240,
+    height: int = 240,
+) -> EnvBase:
+    """One MuJoCo env of ``env_name`` that renders, for :func:`record_episodes`.
+
+    Gymnasium's env with ``render_mode="rgb_array"`` (``width`` x ``height``
+    frames, ~170 MB in memory for a 1,000-step episode at 240x240), wrapped as
+    :func:`~torchrl_surprise.envs.make_mujoco_env` wraps it, under copies of the
+    transforms of ``like`` (the recipe's env: float32 observations, episode
+    statistics), or of ``make_mujoco_env``'s own without ``like``. Rendering
+    needs OpenGL: without a display, set ``MUJOCO_GL=egl`` (or ``osmesa``)
+    before Python starts; the first frame fails otherwise, naming it.
+
+    Args:
+        env_name (str): a gymnasium MuJoCo id, e.g. ``"HalfCheetah-v5"``.
+        seed (int): the env's seed.
+        like: an env whose transforms are copied (default: ``make_mujoco_env``'s).
+        width (int): frame width in pixels.
+        height (int): frame height in pixels.
+
+    Returns:
+        A TorchRL env of batch size ``[]``.
+    """
+    from torchrl_surprise.envs import make_mujoco_env
+    from torchrl_surprise.envs.vector import SingleGymEnv
+
+    if like is None:
+        like = make_mujoco_env(env_name)
+        like.close()
+    base = SingleGymEnv(env_name, render_mode="rgb_array", width=width, height=height)
+    return _with_transforms_of(base, like, seed)
+
+
+def record_minigrid_video(
+    cfg,
+    policy,
+    run_dir: str | os.PathLike,
+    frames: int,
+    *,
+    seed: int,
+    logger=None,
+    fps: int = DEFAULT_FPS,
+) -> Path:
+    """The MiniGrid recipe's video: ``eval.video_episodes`` episodes of ``policy``.
+
+    Recorded on :func:`make_minigrid_video_env` with the transforms of the
+    recipe's env (``common.minigrid.make_env``: ``env.stochasticity``'s noise
+    included), sampled or greedy as ``eval.deterministic`` says; written to
+    ``<run_dir>/videos/episode_<frames>.gif`` and handed to ``logger``
+    (:func:`log_video`) at step ``frames``.
+
+    Args:
+        cfg: the recipe's config (``env.*``, ``eval.deterministic``,
+            ``eval.video_episodes``).
+        policy: the policy operator of the actor-critic.
+        run_dir: the run directory.
+        frames (int): the training frames the policy had: the GIF's name.
+        seed (int): the env's seed (the run's evaluation seed).
+        logger: the run's TorchRL logger, or ``None``.
+        fps (int): frames per second.
+
+    Returns:
+        The GIF's path.
+    """
+    from omegaconf import OmegaConf
+
+    from .minigrid import make_env
+
+    # The transforms only: the rendering env is minigrid's whatever the backend.
+    env_cfg = OmegaConf.to_container(cfg.env, resolve=True)
+    like = make_env(
+        OmegaConf.create({"env": {**env_cfg, "backend": "gymnasium"}}), 1, seed
+    )
+    like.close()
+    env = make_minigrid_video_env(cfg.env.name, seed, like=like)
+    try:
+        video = record_episodes(
+            env,
+            policy,
+            cfg.eval.video_episodes,
+            deterministic=cfg.eval.deterministic,
+        )
+    finally:
+        env.close()
+    path = write_gif(
+        video.frames, Path(run_dir) / VIDEO_DIR / f"episode_{frames}.gif", fps
+    )
+    log_video(logger, video.frames, step=frames, fps=fps)
+    return path
