@@ -3,17 +3,17 @@ recipe's ``config.yaml``.
 
 Each ``config.yaml`` starts its defaults with its schema (``minigrid_schema``,
 ``ddpg_mujoco_schema``), so Hydra refuses, while it composes the config and before
-the script runs, a key that is not in the schema, a value of the wrong type
-(``seed=abc``, ``env.num_envs=2.5``) and a choice that is not one
-(``bonus=banana``), naming the setting by its full key. The values, and the reason
-for each, live in the yaml files: every field here is ``MISSING``.
+the script runs, a key that is not in the schema and a value of the wrong type
+(``seed=abc``, ``env.num_envs=2.5``, ``loss.normalize_advantage=maybe``), naming
+the setting by its full key. The values, and the reason for each, live in the yaml
+files: every field here is ``MISSING``.
 
 What a type cannot say is checked by :func:`validate_minigrid` and
 :func:`validate_ddpg`, the first thing each script does with its config, before
-anything is built: every float is finite, each number is in its range (the
-``rule`` of its field: ``optim.lr`` > 0), and the rules between settings
-(``collector.workers`` divides ``env.num_envs``). Each error names the setting by
-its full key and what it expects.
+anything is built: every float is finite, each value satisfies its field's
+``rule`` (``optim.lr`` > 0, ``bonus`` one of its choices), and the rules between
+settings hold (``collector.workers`` divides ``env.num_envs``). Each error names
+the setting by its full key and what it expects.
 
 The checks that belong to the objects the recipes build (a bonus transform refuses
 an unknown ``normalization`` or a NaN ``coef`` whoever builds it) stay with them.
@@ -39,15 +39,15 @@ Examples:
         object_type=LoggerConfig
 """
 
-from __future__ import annotations
-
+# No "from __future__ import annotations": a sweep sends this module by value to
+# its workers (common.run.register_sweep_pickling), where string annotations
+# could not be evaluated in a module they cannot import.
 import dataclasses
 import math
 import types
 import typing
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from enum import StrEnum
 from typing import Any, NamedTuple
 
 from hydra.core.config_store import ConfigStore
@@ -60,95 +60,58 @@ from torchrl_surprise.transforms.vae_surprise import GLOBAL_BONUSES
 from .run import RESUME_MODES
 
 __all__ = [
+    "ALGOS",
+    "BONUS_AT",
+    "DDPG_BONUSES",
+    "EXPLORATION_NOISES",
     "LOGGER_BACKENDS",
-    "Algo",
-    "BonusAt",
+    "MINIGRID_BONUSES",
+    "OPTIMIZERS",
+    "VAE_VARIANTS",
     "CheckpointConfig",
-    "DDPGBonus",
     "DDPGConfig",
-    "EnvBackend",
     "EvalConfig",
-    "ExplorationNoise",
-    "GlobalBonus",
+    "IntrinsicConfig",
     "LoggerConfig",
-    "MiniGridBonus",
     "MiniGridConfig",
-    "Normalization",
-    "OptimName",
     "Rule",
-    "VAEVariant",
+    "VAEConfig",
     "check_settings",
+    "one_of",
+    "required",
     "validate_ddpg",
     "validate_minigrid",
 ]
 
 
-# Choices: a value that is not a member's name is refused as the config composes.
-class MiniGridBonus(StrEnum):
-    """``bonus`` of the MiniGrid recipe."""
-
-    none = "none"
-    vae = "vae"
-    icm = "icm"
-    rnd = "rnd"  # TorchRL's RNDTransform / RNDLoss
-
-
-class DDPGBonus(StrEnum):
-    """``bonus`` of the DDPG recipe."""
-
-    none = "none"
-    vae = "vae"
-
-
-class Algo(StrEnum):
-    """``algo.name``: the MiniGrid recipe's learner."""
-
-    a2c = "a2c"
-    ppo = "ppo"
-
-
-class OptimName(StrEnum):
-    """``optim.name``: the actor-critic's optimiser."""
-
-    rmsprop = "rmsprop"
-    adam = "adam"
-
-
-class VAEVariant(StrEnum):
-    """``intrinsic.vae.variant``: the VAE bonus (``common.minigrid.VAE_VARIANTS``)."""
-
-    kl = "kl"
-    neg_elbo = "neg_elbo"
-    info_gain = "info_gain"
-    lagged_kl = "lagged_kl"
-    elliptical = "elliptical"
-
-
-class BonusAt(StrEnum):
-    """``intrinsic.bonus_at`` of the DDPG recipe."""
-
-    sample = "sample"
-    collection = "collection"
-
-
-class ExplorationNoise(StrEnum):
-    """``exploration.noise`` of the DDPG recipe."""
-
-    gaussian = "gaussian"
-    ou = "ou"
-
-
-# The choices the library owns, taken from it.
-Normalization = StrEnum("Normalization", [(n, n) for n in NORMALIZATIONS])
-Normalization.__doc__ = "``intrinsic.normalization``: ``NORMALIZATIONS``."
-GlobalBonus = StrEnum("GlobalBonus", [(n, n) for n in GLOBAL_BONUSES])
-GlobalBonus.__doc__ = "``intrinsic.vae.global_bonus``: ``GLOBAL_BONUSES``."
-EnvBackend = StrEnum("EnvBackend", [(n, n) for n in MINIGRID_BACKENDS])
-EnvBackend.__doc__ = "``env.backend``: ``MINIGRID_BACKENDS``."
-
+# Choices are strings checked against these tuples (the field's rule), not enums:
+# an enum-typed field would hand its members to what the recipe builds (a bonus
+# transform's state_dict keeps its normalization), and so into checkpoints, which
+# would then need this module to load.
+MINIGRID_BONUSES: tuple[str, ...] = ("none", "vae", "icm", "rnd")
+"""``bonus`` of the MiniGrid recipe (rnd: TorchRL's RNDTransform and RNDLoss)."""
+DDPG_BONUSES: tuple[str, ...] = ("none", "vae")
+"""``bonus`` of the DDPG recipe."""
+ALGOS: tuple[str, ...] = ("a2c", "ppo")
+"""``algo.name``: the MiniGrid recipe's learner."""
+OPTIMIZERS: tuple[str, ...] = ("rmsprop", "adam")
+"""``optim.name``: the MiniGrid actor-critic's optimiser."""
+VAE_VARIANTS: tuple[str, ...] = (
+    "kl",
+    "neg_elbo",
+    "info_gain",
+    "lagged_kl",
+    "elliptical",
+)
+"""``intrinsic.vae.variant``: the keys of ``common.minigrid.VAE_VARIANTS``."""
+BONUS_AT: tuple[str, ...] = ("sample", "collection")
+"""``intrinsic.bonus_at`` of the DDPG recipe."""
+EXPLORATION_NOISES: tuple[str, ...] = ("gaussian", "ou")
+"""``exploration.noise`` of the DDPG recipe."""
 LOGGER_BACKENDS: tuple[str, ...] = ("csv", "tensorboard", "wandb", "mlflow", "")
-"""``logger.backend``; ``""`` logs nothing. A string checked against these (an
-enum member cannot be named ``""``)."""
+"""``logger.backend``; ``""`` logs nothing."""
+# and those the library owns, taken from it: NORMALIZATIONS, GLOBAL_BONUSES,
+# MINIGRID_BACKENDS
 
 
 class Rule(NamedTuple):
@@ -166,7 +129,7 @@ HALF_OPEN_UNIT = Rule("in (0, 1]", lambda v: 0 < v <= 1)
 
 
 def one_of(choices) -> Rule:
-    """A rule for a setting whose choices an enum cannot type."""
+    """A rule for a setting that takes one of ``choices``."""
     return Rule("one of " + ", ".join(repr(c) for c in choices), choices.__contains__)
 
 
@@ -245,7 +208,7 @@ class IntrinsicConfig:
     """Frames over which coef anneals to coef_end; >= 0."""
     warmup_frames: int = required(NON_NEGATIVE)
     """Frames during which the bonus model trains but the bonus weighs 0; >= 0."""
-    normalization: Normalization = required()
+    normalization: str = required(one_of(NORMALIZATIONS))
     """How the bonus is normalised before it is weighted (NORMALIZATIONS)."""
     clip: float | None = required(POSITIVE)
     """Bound on the normalised bonus, [-clip, clip]; > 0, or null for none."""
@@ -261,7 +224,7 @@ class IntrinsicConfig:
 class AlgoConfig:
     """``algo`` (algo/*.yaml)."""
 
-    name: Algo = required()
+    name: str = required(one_of(ALGOS))
     """The learner: a2c or ppo."""
 
 
@@ -273,7 +236,7 @@ class MiniGridEnvConfig:
     """A MiniGrid env id, e.g. MiniGrid-MultiRoom-N3-S4-v0."""
     num_envs: int = required(POSITIVE)
     """Training envs stepped together; > 0."""
-    backend: EnvBackend = required()
+    backend: str = required(one_of(MINIGRID_BACKENDS))
     """gymnasium (minigrid's Python envs) or envpool (its C++ port)."""
     num_threads: int = required(POSITIVE)
     """envpool's threads (envpool only); > 0."""
@@ -298,7 +261,7 @@ class MiniGridCollectorConfig:
 class MiniGridOptimConfig:
     """``optim``: the actor-critic's optimiser."""
 
-    name: OptimName = required()
+    name: str = required(one_of(OPTIMIZERS))
     """rmsprop or adam."""
     lr: float = required(POSITIVE)
     """Learning rate; > 0."""
@@ -337,13 +300,13 @@ class MiniGridLossConfig:
 class MiniGridVAEConfig(VAEConfig):
     """``intrinsic.vae`` of the MiniGrid recipe: the VAE and which of its bonuses."""
 
-    variant: VAEVariant = required()
+    variant: str = required(one_of(VAE_VARIANTS))
     """kl, neg_elbo, info_gain, lagged_kl or elliptical (docs in config.yaml)."""
     lag_updates: int = required(POSITIVE)
     """lagged_kl: updates between two refreshes of the reference copy; > 0."""
     ridge: float = required(POSITIVE)
     """elliptical: the ridge lambda of C = lambda I + sum phi phi^T; > 0."""
-    global_bonus: GlobalBonus = required()
+    global_bonus: str = required(one_of(GLOBAL_BONUSES))
     """elliptical: none, or kl to multiply the episodic bonus by the KL."""
     use_direction: bool = required()
     """The VAE reads the agent's direction as well as the image."""
@@ -414,7 +377,7 @@ class MiniGridConfig:
 
     seed: int = required(NON_NEGATIVE)
     """Seed of every generator of the run; >= 0 (NumPy's seeds are)."""
-    bonus: MiniGridBonus = required()
+    bonus: str = required(one_of(MINIGRID_BONUSES))
     """none, vae, icm or rnd."""
     resume: str = required(RESUME)
     """auto, true or false (common.run.RESUME_MODES)."""
@@ -505,7 +468,7 @@ class NetworkConfig:
 class ExplorationConfig:
     """``exploration``: the noise added to the actor's actions."""
 
-    noise: ExplorationNoise = required()
+    noise: str = required(one_of(EXPLORATION_NOISES))
     """gaussian or ou."""
     gaussian_std: float = required(NON_NEGATIVE)
     """Std of the Gaussian noise, in half ranges of the action; >= 0."""
@@ -529,7 +492,7 @@ class ObsNormConfig:
 class DDPGIntrinsicConfig(IntrinsicConfig):
     """``intrinsic`` of the DDPG recipe."""
 
-    bonus_at: BonusAt = required()
+    bonus_at: str = required(one_of(BONUS_AT))
     """sample (recomputed on each replay sample) or collection (stored)."""
     batch_size: int = required(POSITIVE)
     """The VAE's minibatch, its own sample from the buffer; > 0."""
@@ -542,7 +505,7 @@ class DDPGConfig:
 
     seed: int = required(NON_NEGATIVE)
     """Seed of every generator of the run; >= 0 (NumPy's seeds are)."""
-    bonus: DDPGBonus = required()
+    bonus: str = required(one_of(DDPG_BONUSES))
     """none or vae."""
     resume: str = required(RESUME)
     """auto, true or false (common.run.RESUME_MODES)."""
@@ -638,7 +601,7 @@ def validate_minigrid(cfg) -> None:
             f"({workers}): each worker process steps env.num_envs / "
             "collector.workers envs. Change one of them."
         )
-    if workers > 1 and cfg.bonus == MiniGridBonus.rnd:
+    if workers > 1 and cfg.bonus == "rnd":
         raise ValueError(
             "bonus=rnd runs TorchRL's RNDTransform inside the env, so with "
             f"collector.workers={workers} each worker process would compute the bonus "
@@ -650,8 +613,8 @@ def validate_minigrid(cfg) -> None:
     variant = cfg.intrinsic.vae.variant
     update_every = cfg.intrinsic.update_every
     if (
-        cfg.bonus == MiniGridBonus.vae
-        and variant in (VAEVariant.info_gain, VAEVariant.lagged_kl)
+        cfg.bonus == "vae"
+        and variant in ("info_gain", "lagged_kl")
         and update_every != 1
     ):
         # info_gain: the change that training on a rollout makes to its states'
@@ -663,14 +626,14 @@ def validate_minigrid(cfg) -> None:
             f"intrinsic.update_every=1 (got {update_every})."
         )
     if cfg.intrinsic.init_from and cfg.bonus not in (
-        MiniGridBonus.vae,
-        MiniGridBonus.icm,
+        "vae",
+        "icm",
     ):
         raise ValueError(
             "intrinsic.init_from starts the bonus model from another run's: bonus "
             f"must be vae or icm with it, got bonus={cfg.bonus}."
         )
-    if cfg.algo.name == Algo.ppo:
+    if cfg.algo.name == "ppo":
         batch = num_envs * cfg.collector.frames_per_env
         size = cfg.loss.minibatch_size
         if size > batch:
@@ -692,10 +655,7 @@ def validate_ddpg(cfg) -> None:
     """
     check_settings(cfg, DDPGConfig)
     intrinsic, collector = cfg.intrinsic, cfg.collector
-    if (
-        intrinsic.normalization == Normalization.return_std
-        and intrinsic.bonus_at == BonusAt.sample
-    ):
+    if intrinsic.normalization == "return_std" and intrinsic.bonus_at == "sample":
         raise ValueError(
             "intrinsic.normalization=return_std needs whole trajectories (a time "
             "dimension) and replay samples are single transitions: use it with "
