@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml constraints/tested.txt
 
 # The main job: A2C + VAE surprise on a MiniGrid task, a few minutes on 2 CPU cores.
 train: $(STAMP)
-	$(PY) recipes/minigrid/main.py $(ARGS)
+	$(PY) recipes/minigrid/main.py eval.video=true $(ARGS)
 
 # The suite on TEST_WORKERS processes (pytest-xdist; 2 for the project's 2-core
 # machine; TEST_WORKERS=0 runs it in one process); the 15 slowest tests are listed.

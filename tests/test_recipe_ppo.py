@@ -82,7 +82,9 @@ def test_same_seed_same_logs_another_seed_differs(tmp_path, vae_run):
 def test_killed_and_resumed_run_logs_what_the_uninterrupted_run_logs(tmp_path, vae_run):
     killed_dir = tmp_path / "killed"
     cmd = [sys.executable, str(MAIN), f"hydra.run.dir={killed_dir}", *TINY, *VAE_RUN]
-    killed = kill_after_checkpoint(cmd, killed_dir / "checkpoint.torchrl", min_frames=256)
+    killed = kill_after_checkpoint(
+        cmd, killed_dir / "checkpoint.torchrl", min_frames=256
+    )
     assert 256 <= killed["frames"] < 1024, "the kill must land mid-run"
     run_recipe(killed_dir, *VAE_RUN)
     assert differing_logs(vae_run, killed_dir) == []

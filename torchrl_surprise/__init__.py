@@ -12,17 +12,21 @@ Env factories live in :mod:`torchrl_surprise.envs` (MiniGrid, MuJoCo: each needs
 its extra), the resumable collectors in :mod:`torchrl_surprise.collectors`.
 """
 
-from torchrl_surprise.modules import ICMModel, StateVAE
+from torchrl_surprise.modules import E3BModel, ICMModel, RNDModel, StateVAE
 from torchrl_surprise.objectives import (
     ICMLoss,
     IntrinsicValueLoss,
+    InverseDynamicsLoss,
+    RNDDistillationLoss,
     TwoStreamAdvantage,
     VAELoss,
 )
 from torchrl_surprise.transforms import (
+    E3BTransform,
     ICMTransform,
     IntrinsicRewardTransform,
     LinearSchedule,
+    NovelDTransform,
     VAEEllipticalTransform,
     VAESurpriseTransform,
 )
@@ -30,12 +34,18 @@ from torchrl_surprise.transforms import (
 __version__ = "0.2.0"
 
 __all__ = [
+    "E3BModel",
+    "E3BTransform",
     "ICMLoss",
     "ICMModel",
     "ICMTransform",
     "IntrinsicRewardTransform",
     "IntrinsicValueLoss",
+    "InverseDynamicsLoss",
     "LinearSchedule",
+    "NovelDTransform",
+    "RNDDistillationLoss",
+    "RNDModel",
     "StateVAE",
     "TwoStreamAdvantage",
     "VAEEllipticalTransform",
