@@ -198,7 +198,7 @@ def test_a_bad_value_is_refused_naming_its_setting(run, override):
             for override, message in [
                 (
                     "bonus=banana",
-                    "bonus must be one of 'none', 'vae', 'icm', 'rnd', got 'banana'.",
+                    "bonus must be one of 'none', 'vae', 'icm', 'rnd', 'e3b', 'noveld', got 'banana'.",
                 ),
                 (
                     "algo.name=sac",
@@ -296,7 +296,7 @@ def test_a_bad_value_is_refused_naming_its_setting(run, override):
                 ),
                 (
                     "bonus=rnd intrinsic.init_from=runs/x",
-                    "bonus must be vae or icm with it, got bonus=rnd.",
+                    "bonus must be vae, icm, e3b or noveld with it, got bonus=rnd.",
                 ),
             ]
         ),

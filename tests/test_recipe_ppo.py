@@ -49,7 +49,7 @@ def vae_run(tmp_path_factory) -> Path:
     return run_dir
 
 
-@pytest.mark.parametrize("bonus", ["none", "vae", "icm", "rnd"])
+@pytest.mark.parametrize("bonus", ["none", "vae", "icm", "rnd", "e3b", "noveld"])
 def test_every_bonus_runs_end_to_end(tmp_path, bonus):
     run_dir = tmp_path / bonus
     proc = run_recipe(run_dir, f"bonus={bonus}", "collector.total_frames=256")

@@ -88,7 +88,7 @@ __all__ = [
 # an enum-typed field would hand its members to what the recipe builds (a bonus
 # transform's state_dict keeps its normalization), and so into checkpoints, which
 # would then need this module to load.
-MINIGRID_BONUSES: tuple[str, ...] = ("none", "vae", "icm", "rnd")
+MINIGRID_BONUSES: tuple[str, ...] = ("none", "vae", "icm", "rnd", "e3b", "noveld")
 """``bonus`` of the MiniGrid recipe (rnd: TorchRL's RNDTransform and RNDLoss)."""
 DDPG_BONUSES: tuple[str, ...] = ("none", "vae")
 """``bonus`` of the DDPG recipe."""
@@ -333,6 +333,30 @@ class RNDConfig:
 
 
 @dataclass
+class E3BConfig:
+    """``intrinsic.e3b``: E3B's elliptical bonus on an inverse-dynamics embedding."""
+
+    embedding_dim: int = required(POSITIVE)
+    """Size of the embedding phi the bonus is computed on; > 0."""
+    hidden_dim: int = required(POSITIVE)
+    """Width of the inverse-dynamics head; > 0."""
+    ridge: float = required(POSITIVE)
+    """The ridge lambda of C = lambda I + sum phi phi^T; > 0."""
+
+
+@dataclass
+class NovelDConfig:
+    """``intrinsic.noveld``: NovelD's novelty difference on RND, first visits."""
+
+    alpha: float = required(NON_NEGATIVE)
+    """Weight of novelty(s) in max(novelty(s') - alpha novelty(s), 0); >= 0."""
+    embedding_dim: int = required(POSITIVE)
+    """Output size of RND's target and predictor; > 0."""
+    hidden_dim: int = required(POSITIVE)
+    """Width of RND's encoders; > 0."""
+
+
+@dataclass
 class MiniGridIntrinsicConfig(IntrinsicConfig):
     """``intrinsic`` of the MiniGrid recipe."""
 
@@ -341,7 +365,7 @@ class MiniGridIntrinsicConfig(IntrinsicConfig):
     episodic: bool = required()
     """Intrinsic returns stop at episode ends."""
     init_from: str | None = required()
-    """A run dir or checkpoint whose bonus model this run starts from (vae, icm)."""
+    """A run dir or checkpoint whose bonus model this run starts from (not rnd)."""
     finetune: bool = required()
     """With init_from: keep training the bonus model (false: frozen)."""
     update_steps: int = required(NON_NEGATIVE)
@@ -349,6 +373,8 @@ class MiniGridIntrinsicConfig(IntrinsicConfig):
     vae: MiniGridVAEConfig = section(MiniGridVAEConfig)
     icm: ICMConfig = section(ICMConfig)
     rnd: RNDConfig = section(RNDConfig)
+    e3b: E3BConfig = section(E3BConfig)
+    noveld: NovelDConfig = section(NovelDConfig)
 
 
 @dataclass
@@ -378,7 +404,7 @@ class MiniGridConfig:
     seed: int = required(NON_NEGATIVE)
     """Seed of every generator of the run; >= 0 (NumPy's seeds are)."""
     bonus: str = required(one_of(MINIGRID_BONUSES))
-    """none, vae, icm or rnd."""
+    """none, vae, icm, rnd, e3b or noveld."""
     resume: str = required(RESUME)
     """auto, true or false (common.run.RESUME_MODES)."""
     setting: str = required()
@@ -625,13 +651,10 @@ def validate_minigrid(cfg) -> None:
             "its last updates, so it trains on every rollout: set "
             f"intrinsic.update_every=1 (got {update_every})."
         )
-    if cfg.intrinsic.init_from and cfg.bonus not in (
-        "vae",
-        "icm",
-    ):
+    if cfg.intrinsic.init_from and cfg.bonus in ("none", "rnd"):
         raise ValueError(
             "intrinsic.init_from starts the bonus model from another run's: bonus "
-            f"must be vae or icm with it, got bonus={cfg.bonus}."
+            f"must be vae, icm, e3b or noveld with it, got bonus={cfg.bonus}."
         )
     if cfg.algo.name == "ppo":
         batch = num_envs * cfg.collector.frames_per_env

@@ -25,10 +25,16 @@ from torchrl.objectives.rnd import RNDLoss
 from torchrl.objectives.value import GAE
 
 from torchrl_surprise import (
+    E3BModel,
+    E3BTransform,
     ICMLoss,
     ICMModel,
     ICMTransform,
     IntrinsicValueLoss,
+    InverseDynamicsLoss,
+    NovelDTransform,
+    RNDDistillationLoss,
+    RNDModel,
     StateVAE,
     TwoStreamAdvantage,
     VAELoss,
@@ -223,6 +229,21 @@ def make_bonus(cfg, action_spec, bonus: str):
         )
         transform = ICMTransform(icm, **common)
         loss = ICMLoss(icm, beta=icfg.icm.beta)
+    elif bonus == "e3b":
+        model = E3BModel.for_minigrid(
+            num_actions=action_spec.space.n,
+            embedding_dim=icfg.e3b.embedding_dim,
+            hidden_dim=icfg.e3b.hidden_dim,
+        )
+        transform = E3BTransform(model, ridge=icfg.e3b.ridge, **common)
+        loss = InverseDynamicsLoss(model)
+    elif bonus == "noveld":
+        rnd = RNDModel.for_minigrid(
+            embedding_dim=icfg.noveld.embedding_dim,
+            hidden_dim=icfg.noveld.hidden_dim,
+        )
+        transform = NovelDTransform(rnd, alpha=icfg.noveld.alpha, **common)
+        loss = RNDDistillationLoss(rnd)
     elif bonus == "rnd":
 
         def net():
@@ -432,7 +453,7 @@ def rollout_metrics(stats, data, bonus_transform=None, bonus_td=None) -> dict:
 
 
 # The attribute of each bonus transform that holds its model.
-_BONUS_MODELS = {"vae": "vae", "icm": "icm"}
+_BONUS_MODELS = {"vae": "vae", "icm": "icm", "e3b": "model", "noveld": "rnd"}
 
 
 def load_bonus_model(transform, bonus: str, source: str | os.PathLike) -> int:
@@ -440,7 +461,7 @@ def load_bonus_model(transform, bonus: str, source: str | os.PathLike) -> int:
 
     Args:
         transform: the bonus transform of this run.
-        bonus (str): ``"vae"`` or ``"icm"``.
+        bonus (str): ``"vae"``, ``"icm"``, ``"e3b"`` or ``"noveld"``.
         source: a run directory or its checkpoint file.
 
     Returns:
@@ -450,7 +471,8 @@ def load_bonus_model(transform, bonus: str, source: str | os.PathLike) -> int:
 
     if bonus not in _BONUS_MODELS:
         raise ValueError(
-            f"intrinsic.init_from supports bonus vae or icm, not {bonus!r}."
+            "intrinsic.init_from supports bonus "
+            f"{', '.join(_BONUS_MODELS)}, not {bonus!r}."
         )
     try:
         path = find_checkpoint(source)
