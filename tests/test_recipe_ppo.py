@@ -28,7 +28,9 @@ TINY = [
     "eval.num_envs=2",
     "checkpoint.interval_frames=128",
 ]
-VAE_RUN = ["bonus=vae", "collector.total_frames=1024", "seed=3"]
+# The seed and kill/resume tests run on the envpool backend (the A2C recipe's run on
+# minigrid's): a resumed envpool run logs what the uninterrupted one logs too.
+VAE_RUN = ["bonus=vae", "collector.total_frames=1024", "seed=3", "env.backend=envpool"]
 
 
 def run_recipe(run_dir: Path, *overrides: str, check: bool = True):
