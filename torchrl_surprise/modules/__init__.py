@@ -1,7 +1,8 @@
 """Networks: the state VAE, observation encoders, and the ICM, E3B and RND networks."""
 
 from torchrl_surprise.modules.e3b import E3BModel
-from torchrl_surprise.modules.icm import ICMModel, InverseDynamicsModel
+from torchrl_surprise.modules.icm import ICMModel
+from torchrl_surprise.modules.inverse_dynamics import InverseDynamicsModel
 from torchrl_surprise.modules.rnd import RNDModel
 from torchrl_surprise.modules.vae import (
     GaussianVectorDecoder,

@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-import torch
-
-from torchrl_surprise.modules.icm import InverseDynamicsModel
-from torchrl_surprise.modules.vae import MiniGridEncoder, VectorEncoder
+from torchrl_surprise.modules.inverse_dynamics import InverseDynamicsModel
 
 __all__ = ["E3BModel"]
 
@@ -17,11 +14,14 @@ class E3BModel(InverseDynamicsModel):
     ``(phi(s_t), phi(s_{t+1}))`` and its loss
     (:class:`~torchrl_surprise.objectives.InverseDynamicsLoss`) is what trains
     ``phi``, so the embedding keeps what the agent controls.
-    :class:`~torchrl_surprise.transforms.E3BTransform` computes the bonus on it.
+    :class:`~torchrl_surprise.transforms.E3BTransform` computes the bonus on it
+    (:meth:`~torchrl_surprise.modules.InverseDynamicsModel.embed`).
 
     The builders use the library's encoders (ICM's design: MiniGrid ids embedded
     per cell, an MLP for vectors), not E3B's convolutional network; the sizes
-    are E3B's (see :meth:`for_minigrid`).
+    are E3B's (see :meth:`for_minigrid`;
+    :meth:`~torchrl_surprise.modules.InverseDynamicsModel.for_vector` for
+    vectors).
 
     Args:
         encoder (nn.Module): maps observations (in ``in_keys`` order) to the
@@ -40,15 +40,6 @@ class E3BModel(InverseDynamicsModel):
         >>> model.embed(image, torch.zeros(4, dtype=torch.long)).shape
         torch.Size([4, 16])
     """
-
-    @property
-    def embedding_dim(self) -> int:
-        """The size of ``phi``."""
-        return self.encoder.out_features
-
-    def embed(self, *observations: torch.Tensor) -> torch.Tensor:
-        """``phi(s)``, ``[..., embedding_dim]``, for the observation tensors of ``s``."""
-        return self.encoder(*observations)
 
     @classmethod
     def for_minigrid(
@@ -75,45 +66,10 @@ class E3BModel(InverseDynamicsModel):
             use_direction (bool): also encode the direction.
             onednn_linear (bool): run the linear layers on ``OneDNNLinear``.
         """
-        return cls(
-            MiniGridEncoder(
-                hidden_dim=embedding_dim,
-                use_direction=use_direction,
-                onednn_linear=onednn_linear,
-            ),
+        return super().for_minigrid(
             num_actions,
-            discrete=True,
+            embedding_dim=embedding_dim,
             hidden_dim=hidden_dim,
-            in_keys=["image", "direction"] if use_direction else ["image"],
-            onednn_linear=onednn_linear,
-        )
-
-    @classmethod
-    def for_vector(
-        cls,
-        obs_dim: int,
-        action_dim: int,
-        embedding_dim: int = 256,
-        hidden_dim: int = 256,
-        discrete: bool = False,
-        onednn_linear: bool = False,
-    ) -> E3BModel:
-        """E3B on flat float observations (continuous actions by default).
-
-        Args:
-            obs_dim (int): observation size.
-            action_dim (int): action size, or number of discrete actions.
-            embedding_dim (int): size of ``phi``.
-            hidden_dim (int): width of the inverse model.
-            discrete (bool): discrete actions.
-            onednn_linear (bool): run the linear layers on ``OneDNNLinear``.
-        """
-        return cls(
-            VectorEncoder(
-                obs_dim, hidden_dim=embedding_dim, onednn_linear=onednn_linear
-            ),
-            action_dim,
-            discrete=discrete,
-            hidden_dim=hidden_dim,
+            use_direction=use_direction,
             onednn_linear=onednn_linear,
         )

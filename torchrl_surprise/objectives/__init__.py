@@ -1,8 +1,8 @@
 """Losses that train the bonus models (TorchRL ``LossModule`` conventions), and the
 two-stream advantage that lets a bonus drive exploration."""
 
-from torchrl_surprise.objectives.e3b import InverseDynamicsLoss
 from torchrl_surprise.objectives.icm import ICMLoss
+from torchrl_surprise.objectives.inverse_dynamics import InverseDynamicsLoss
 from torchrl_surprise.objectives.rnd import RNDDistillationLoss
 from torchrl_surprise.objectives.two_stream import (
     IntrinsicValueLoss,

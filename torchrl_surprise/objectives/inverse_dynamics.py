@@ -1,4 +1,9 @@
-"""The inverse-dynamics loss that trains E3B's embedding (Henaff et al. 2022)."""
+"""The inverse-dynamics loss: what trains ICM's and E3B's embeddings.
+
+ICM (Pathak et al., 2017) weighs it against a forward loss
+(:class:`~torchrl_surprise.objectives.ICMLoss`); E3B (Henaff et al., 2022) trains
+its embedding with it alone.
+"""
 
 from __future__ import annotations
 
@@ -9,7 +14,7 @@ import torch.nn.functional as F
 from tensordict import TensorDict, TensorDictBase
 from tensordict.utils import NestedKey
 
-from torchrl_surprise.modules.icm import InverseDynamicsModel
+from torchrl_surprise.modules.inverse_dynamics import InverseDynamicsModel
 from torchrl_surprise.objectives.common import BonusModelLoss, as_key_tuple
 
 __all__ = ["InverseDynamicsLoss"]
@@ -25,6 +30,7 @@ class InverseDynamicsLoss(BonusModelLoss):
     :class:`~torchrl_surprise.modules.E3BModel`, whose embedding
     :class:`~torchrl_surprise.transforms.E3BTransform` computes the bonus on.
     E3B trains it with a learning rate of ``1e-4``.
+    :class:`~torchrl_surprise.objectives.ICMLoss` adds ICM's forward loss to it.
 
     Args:
         model (InverseDynamicsModel): the embedding and inverse model.
@@ -75,10 +81,10 @@ class InverseDynamicsLoss(BonusModelLoss):
         nxt = [("next", *as_key_tuple(k)) for k in obs]
         return obs + nxt + [self.tensor_keys.action]
 
-    def forward(self, tensordict: TensorDictBase = None, **kwargs) -> TensorDictBase:
-        """Computes the loss on a batch (a TensorDict, or the keys as keywords)."""
-        if tensordict is None:
-            tensordict = TensorDict(kwargs)
+    def _inverse_terms(
+        self, tensordict: TensorDictBase
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``(phi(s), phi(s'), encoded action, inverse error per transition)``."""
         keys = self.tensor_keys.observations
         obs = self._read(tensordict, keys)
         next_obs = self._read(tensordict, [("next", *as_key_tuple(k)) for k in keys])
@@ -87,12 +93,21 @@ class InverseDynamicsLoss(BonusModelLoss):
         out = self.model.inverse_model(torch.cat([phi, phi_next], -1))
         encoded = self.model.encode_action(action)
         if self.model.discrete:
+            # The class of each one-hot row: what model.action_target returns,
+            # without validating and encoding the action a second time.
             target = encoded.argmax(-1)
             error = F.cross_entropy(
                 out.reshape(-1, out.shape[-1]), target.reshape(-1), reduction="none"
             ).reshape(target.shape)
         else:
             error = 0.5 * (out - encoded).pow(2).sum(-1)
+        return phi, phi_next, encoded, error
+
+    def forward(self, tensordict: TensorDictBase = None, **kwargs) -> TensorDictBase:
+        """Computes the loss on a batch (a TensorDict, or the keys as keywords)."""
+        if tensordict is None:
+            tensordict = TensorDict(kwargs)
+        *_, error = self._inverse_terms(tensordict)
         return TensorDict(
             {
                 "loss_inverse": self._reduce(error),
