@@ -67,6 +67,7 @@ __all__ = [
     "EpisodeStats",
     "Evaluation",
     "RunCounters",
+    "STOP_SIGNALS",
     "StopSignal",
     "TrainingRun",
     "config_differences",
@@ -77,6 +78,7 @@ __all__ = [
     "truncate_scalar_logs",
     "evaluate",
     "get_run_logger",
+    "RESUMED_LOGGERS",
     "checkpoint_info",
     "find_checkpoint",
     "load_checkpoint",
@@ -562,25 +564,45 @@ class RunCounters:
         self.__dict__.update(state)
 
 
+STOP_SIGNALS: tuple[signal.Signals, ...] = (
+    signal.SIGINT,
+    signal.SIGTERM,
+    signal.SIGUSR2,
+    signal.SIGHUP,
+)
+"""The signals that stop a run with a checkpoint (:class:`StopSignal`): Ctrl-C, a
+scheduler's SIGTERM, SIGUSR2 (what submitit asks SLURM to send ``signal_delay_s``,
+120 s, before the time limit) and SIGHUP (the terminal closed; not when ignored, as
+under ``nohup``)."""
+
+
 class StopSignal:
-    """Turns SIGINT and SIGTERM into a request to stop after the current update.
+    """Turns the :data:`STOP_SIGNALS` into a request to stop after the current update.
 
     A training loop checks it once per iteration; when set, it saves a checkpoint
-    and exits (:meth:`TrainingRun.after_update`) (a cluster scheduler sends SIGTERM before preemption; Ctrl-C sends
-    SIGINT). A second SIGINT interrupts at once.
+    and exits (:meth:`TrainingRun.after_update`): Ctrl-C sends SIGINT, a cluster
+    scheduler SIGTERM before preemption, submitit SIGUSR2 before the time limit,
+    a closed terminal SIGHUP. A second SIGINT interrupts at once. A SIGHUP that is
+    ignored (``nohup``) stays ignored. The handlers found in place are kept
+    (:meth:`previous`, :meth:`restore`): submitit's own for SIGUSR2 requeues its
+    job once the run has saved (:meth:`TrainingRun.after_update`).
 
     Examples:
         >>> import os, signal
         >>> stop = StopSignal()
-        >>> os.kill(os.getpid(), signal.SIGTERM)
+        >>> os.kill(os.getpid(), signal.SIGUSR2)
         >>> bool(stop), stop.name
-        (True, 'SIGTERM')
+        (True, 'SIGUSR2')
         >>> stop.restore()
     """
 
-    def __init__(self, signals: Sequence[int] = (signal.SIGINT, signal.SIGTERM)):
+    def __init__(self, signals: Sequence[int] = STOP_SIGNALS):
         self.received: int | None = None
-        self._previous = {sig: signal.signal(sig, self._handle) for sig in signals}
+        self._previous = {}
+        for sig in signals:
+            if sig == signal.SIGHUP and signal.getsignal(sig) == signal.SIG_IGN:
+                continue  # nohup: the run is meant to outlive its terminal
+            self._previous[sig] = signal.signal(sig, self._handle)
 
     def _handle(self, signum, frame) -> None:
         if self.received == signal.SIGINT and signum == signal.SIGINT:
@@ -593,6 +615,10 @@ class StopSignal:
     @property
     def name(self) -> str:
         return signal.Signals(self.received).name if self.received else ""
+
+    def previous(self, sig: int):
+        """The handler that ``sig`` had before (``None`` if it was not taken)."""
+        return self._previous.get(sig)
 
     def restore(self) -> None:
         """Puts back the handlers that were installed before."""
@@ -746,13 +772,16 @@ class TrainingRun:
        checks, the checkpoint to resume from); :meth:`nothing_to_do` says
        whether that checkpoint already holds the whole budget.
     2. :meth:`restore` with what a checkpoint holds, once the run is built: loads
-       the checkpoint into it, opens the logger (:attr:`logger`), shows a progress
-       bar (:attr:`progress_bar`) and turns SIGINT / SIGTERM into a request to
-       stop (:class:`StopSignal`).
+       the checkpoint into it, opens the logger (:attr:`logger`; a resumed run
+       continues its logger's run from the state the checkpoint holds as
+       ``"logger"``, :func:`get_run_logger`), shows a progress bar
+       (:attr:`progress_bar`) and turns the :data:`STOP_SIGNALS` into a request
+       to stop (:class:`StopSignal`).
     3. :meth:`after_update` once per collected batch, after its evaluation: the
        progress bar, the periodic checkpoint every ``checkpoint.interval_frames``
        (kept under ``checkpoints/`` with ``checkpoint.keep``), and on a stop
-       request a checkpoint, one line on how to resume and the exit.
+       request a checkpoint, one line on how to resume and the exit; in a
+       submitit job, on its SIGUSR2, submitit's handler requeues the job instead.
     4. :meth:`finish`: the final checkpoint, the learning curve read back from the
        logs, and the summary.
 
@@ -855,19 +884,32 @@ class TrainingRun:
         """
         cfg = self.cfg
         self.counters = components["progress"]
+        if "logger" in components:
+            raise KeyError("'logger' is the run's own: the logger's state.")
+        logger_state = _LoggerState(cfg.logger.backend)
+        saved = {**components, "logger": logger_state}
         self._checkpoint = RunCheckpoint(
             self.run_dir / CHECKPOINT_NAME,
-            components,
+            saved,
             config=_resolved(cfg),
             keep_dir=self.run_dir / KEPT_CHECKPOINTS
             if cfg.checkpoint.get("keep", False)
             else None,
         )
         if self._source is not None:
-            self._checkpoint.load(self._source)
+            if not _holds_component(self._source, "logger"):
+                # written before the logger's state was saved: resumed without it
+                saved = components
+            RunCheckpoint(self._source, saved, config={}).load(self._source)
         self.logger = get_run_logger(
-            cfg.logger.backend, self.run_dir, self.name, cfg.logger.project_name
+            cfg.logger.backend,
+            self.run_dir,
+            self.name,
+            cfg.logger.project_name,
+            state_dict=logger_state.saved_for(cfg.logger.backend),
+            purge_after=self.counters.frames,
         )
+        logger_state.logger = self.logger
         self._stop = StopSignal()
         self._on_exit = tuple(on_exit)
         if show_progress is None:
@@ -909,8 +951,16 @@ class TrainingRun:
             close()
         print(
             f"{self._stop.name}: stopped at {frames} frames, checkpoint saved. "
-            f"Resume with: {resume_command(self.run_dir)}"
+            f"Resume with: {resume_command(self.run_dir)}",
+            flush=True,
         )
+        requeue = _submitit_requeue(self._stop)
+        if requeue is not None:
+            # submitit's handler saves its job (the launcher's task with the same
+            # arguments), requeues it and exits; the job comes back with
+            # resume=auto and continues from the checkpoint just saved.
+            self._stop.restore()
+            requeue(self._stop.received, None)
         _exit_process(128 + self._stop.received)
 
     def finish(
@@ -949,6 +999,22 @@ class TrainingRun:
         )
         self._lock.release()
         return curve
+
+
+def _submitit_requeue(stop: StopSignal):
+    """Submitit's handler of the signal that stopped the run, when this process is
+    a submitit job (``SUBMITIT_EXECUTOR``) and the signal is the one submitit
+    installs a handler for (``SUBMITIT_PREEMPT_SIGNAL``, SIGUSR2): the handler
+    requeues the job (``max_num_timeout`` times at most) and exits. ``None``
+    otherwise."""
+    if not os.environ.get("SUBMITIT_EXECUTOR"):
+        return None
+    name = "SIG" + os.environ.get("SUBMITIT_PREEMPT_SIGNAL", "USR2")
+    preempt = getattr(signal, name, None)
+    if stop.received != preempt:
+        return None
+    handler = stop.previous(stop.received)
+    return handler if callable(handler) else None
 
 
 def _in_sweep() -> bool:
@@ -1049,26 +1115,106 @@ class EpisodeStats:
         self.episodes = state["episodes"]
 
 
+def _holds_component(path: Path, name: str) -> bool:
+    # a checkpoint of the previous format never holds the logger's state
+    return not _is_legacy(path) and name in Checkpoint.manifest(path)["components"]
+
+
+class _LoggerState:
+    """The checkpoint's ``"logger"``: the backend and TorchRL's
+    ``Logger.state_dict()`` of the run's logger (W&B's run id, the CSV logger's
+    counters), which a resumed run opens its logger with (:func:`get_run_logger`).
+    Saving it flushes the logger: what was logged up to a checkpoint is on disk."""
+
+    def __init__(self, backend: str):
+        self.backend = backend
+        self.logger = None
+        self.saved: Mapping[str, Any] | None = None
+
+    def state_dict(self) -> dict[str, Any]:
+        state: dict[str, Any] = {"backend": self.backend}
+        if self.logger is not None:
+            state["state"] = self.logger.state_dict()
+        return state
+
+    def load_state_dict(self, state: Mapping[str, Any]) -> None:
+        self.saved = state
+
+    def saved_for(self, backend: str) -> Mapping[str, Any] | None:
+        """The saved logger state, if it is ``backend``'s (the backend may change
+        on resume)."""
+        if not self.saved or self.saved.get("backend") != backend:
+            return None
+        return self.saved.get("state")
+
+
+RESUMED_LOGGERS: tuple[str, ...] = ("csv", "tensorboard", "wandb")
+"""The backends whose run a resumed run continues from the logger state in its
+checkpoint (TorchRL's ``get_logger(..., state_dict=)``): the same W&B run (its id,
+``resume="must"``), the same TensorBoard and CSV directories with their counters.
+MLflow is not among them: a resumed run logs a new MLflow run of the same
+experiment."""
+
+
 def get_run_logger(
-    backend: str, run_dir: str | os.PathLike, experiment_name: str, project: str
+    backend: str,
+    run_dir: str | os.PathLike,
+    experiment_name: str,
+    project: str,
+    *,
+    state_dict: Mapping[str, Any] | None = None,
+    purge_after: int | None = None,
 ):
     """A TorchRL logger writing under ``<run_dir>/logs`` (``None`` for ``""``).
 
     Args:
         backend (str): ``"csv"``, ``"tensorboard"``, ``"wandb"``, ``"mlflow"`` or ``""``.
         run_dir: the run directory.
-        experiment_name (str): the experiment's name (its folder for CSV).
+        experiment_name (str): the experiment's name (its folder for CSV and
+            TensorBoard).
         project (str): the W&B project (ignored by the other backends).
+        state_dict: the logger's ``state_dict()`` saved in the checkpoint of the
+            run being resumed: its run continues (:data:`RESUMED_LOGGERS`; ignored
+            for the others). The directory is ``run_dir``'s, wherever the run was
+            written.
+        purge_after: the step (frames) of the checkpoint a run resumes from:
+            TensorBoard hides the events that a run killed after it logged past it
+            (``SummaryWriter``'s ``purge_step``); the CSV rows are cut by
+            :func:`prepare_run`.
+
+    Examples:
+        >>> import tempfile
+        >>> run_dir = tempfile.mkdtemp()
+        >>> logger = get_run_logger("csv", run_dir, "demo", "p")
+        >>> logger.log_scalar("train/x", 1.0, step=64)
+        >>> state = logger.state_dict()
+        >>> resumed = get_run_logger("csv", run_dir, "demo", "p", state_dict=state)
+        >>> resumed.experiment.scalars["train/x"]
+        [(64, 1.0)]
     """
     from torchrl.record.loggers import get_logger
 
-    extra = {"project": project} if backend == "wandb" else {}
-    return get_logger(
-        backend,
-        logger_name=str(Path(run_dir) / "logs"),
-        experiment_name=experiment_name,
-        **extra,
+    logs = str(Path(run_dir) / "logs")
+    kwargs: dict[str, Any] = {}
+    if backend == "wandb":
+        kwargs["wandb_kwargs"] = {"project": project}
+    if state_dict is not None and backend in RESUMED_LOGGERS:
+        kwargs["state_dict"] = {
+            **state_dict,
+            "log_dir": logs,
+            "exp_name": experiment_name,
+        }
+    logger = get_logger(
+        backend, logger_name=logs, experiment_name=experiment_name, **kwargs
     )
+    if backend == "tensorboard" and purge_after is not None:
+        from tensorboard.compat.proto.event_pb2 import Event, SessionLog
+
+        writer = logger.experiment._get_file_writer()
+        start = SessionLog(status=SessionLog.START)
+        writer.add_event(Event(step=purge_after + 1, session_log=start))
+        writer.flush()
+    return logger
 
 
 EVAL_SEED_OFFSET = 10_000
