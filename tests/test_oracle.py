@@ -3,15 +3,19 @@ and replays of the oracle's actions in the real paper tasks."""
 
 from __future__ import annotations
 
+import copy
 import csv
+import heapq
 import itertools
 
 import gymnasium as gym
 import numpy as np
 import pytest
+from minigrid.core.constants import DIR_TO_VEC
 from minigrid.core.grid import Grid
 from minigrid.core.mission import MissionSpace
 from minigrid.core.world_object import Ball, Box, Door, Floor, Goal, Key, Lava, Wall
+from minigrid.envs.keycorridor import KeyCorridorEnv
 from minigrid.minigrid_env import MiniGridEnv
 
 from torchrl_surprise.envs import MULTIROOM_N3_S4, MULTIROOM_N4_S4
@@ -42,7 +46,9 @@ def _cell(char: str):
         "K": lambda: Key("yellow"),
         "k": lambda: Key("blue"),
         "B": lambda: Ball("yellow"),
-        "X": lambda: Box("red"),
+        "X": lambda: Box("red"),  # empty
+        "Y": lambda: Box("grey", contains=Key("yellow")),
+        "T": lambda: Ball("blue"),  # the object to pick up, in a pickup task
     }.get(char, lambda: None)()
 
 
@@ -51,7 +57,8 @@ class LayoutEnv(MiniGridEnv):
 
     ``#`` wall, ``.`` empty, ``F`` floor, ``G`` goal, ``~`` lava, ``D`` closed yellow door, ``O``
     open yellow door, ``L`` / ``M`` locked yellow / blue door, ``K`` / ``k`` yellow /
-    blue key, ``B`` ball, ``X`` box, and ``> v < ^`` the agent and its direction.
+    blue key, ``B`` ball, ``X`` empty box, ``Y`` box holding a yellow key, ``T`` blue
+    ball, and ``> v < ^`` the agent and its direction.
     """
 
     def __init__(self, rows: list[str], max_steps: int = 100, **kwargs):
@@ -66,19 +73,47 @@ class LayoutEnv(MiniGridEnv):
         )
 
     def _gen_grid(self, width: int, height: int) -> None:
-        self.grid = Grid(width, height)
-        for y, row in enumerate(self.rows):
-            for x, char in enumerate(row):
-                if char in _AGENT_DIRS:
-                    self.agent_pos = (x, y)
-                    self.agent_dir = _AGENT_DIRS[char]
-                elif (obj := _cell(char)) is not None:
-                    self.put_obj(obj, x, y)
+        _draw(self, self.rows)
         self.mission = "reach the goal"
+
+
+def _draw(env: MiniGridEnv, rows: list[str]) -> None:
+    """Sets ``env``'s grid, agent and (for ``T``) object to pick up from ``rows``."""
+    env.grid = Grid(len(rows[0]), len(rows))
+    for y, row in enumerate(rows):
+        for x, char in enumerate(row):
+            if char in _AGENT_DIRS:
+                env.agent_pos = (x, y)
+                env.agent_dir = _AGENT_DIRS[char]
+            elif (obj := _cell(char)) is not None:
+                env.put_obj(obj, x, y)
+                if char == "T":
+                    env.obj = obj
+
+
+class PickupLayoutEnv(KeyCorridorEnv):
+    """KeyCorridor's task on a grid drawn as text (as in :class:`LayoutEnv`): the
+    episode succeeds when a pickup leaves the agent carrying ``T`` (``env.obj``).
+    Only the layout is replaced; ``step`` is KeyCorridor's own."""
+
+    def __init__(self, rows: list[str], max_steps: int = 100):
+        self.rows = rows
+        super().__init__(num_rows=1, room_size=3, max_steps=max_steps)
+
+    def _gen_grid(self, width: int, height: int) -> None:
+        _draw(self, self.rows)
+        self.width, self.height = len(self.rows[0]), len(self.rows)
+        self.mission = "pick up the blue ball"
 
 
 def _make(rows: list[str], max_steps: int = 100) -> LayoutEnv:
     env = LayoutEnv(rows, max_steps=max_steps)
+    env.reset(seed=0)
+    return env
+
+
+def _make_pickup(rows: list[str], max_steps: int = 100) -> PickupLayoutEnv:
+    env = PickupLayoutEnv(rows, max_steps=max_steps)
     env.reset(seed=0)
     return env
 
@@ -235,12 +270,22 @@ def test_solve_does_not_modify_the_env():
     np.testing.assert_array_equal(env.grid.encode(), before[3])
 
 
+class _HeavyBall(Ball):
+    """A ball subclass: it could change what pickup or toggle does."""
+
+
 def test_unsupported_objects_and_tasks_are_refused():
-    with pytest.raises(ValueError, match="Box"):
-        solve_minigrid(_make(["######", "#>X.G#", "######"]))
+    env = _make(["######", "#>..G#", "######"])
+    env.grid.set(2, 1, _HeavyBall("red"))
+    with pytest.raises(ValueError, match="_HeavyBall"):
+        solve_minigrid(env)
     env = gym.make("MiniGrid-Unlock-v0")  # overrides step(): success = door opened
     env.reset(seed=0)
     with pytest.raises(ValueError, match="overrides"):
+        solve_minigrid(env)
+    env = _make_pickup(["######", "#>.T.#", "######"])
+    env.grid.set(3, 1, None)  # the object to pick up is gone from the grid
+    with pytest.raises(ValueError, match="not in the grid"):
         solve_minigrid(env)
 
 
@@ -339,6 +384,160 @@ def test_oracle_matches_a_bfs_over_the_real_step_on_random_layouts():
     assert 10 <= solved < NUM_RANDOM_LAYOUTS  # both kinds of layouts were drawn
 
 
+# Boxes, and tasks whose success is picking up env.obj ------------------------------
+def test_box_hiding_the_key_is_toggled_first():
+    env = _make(["#######", "#>YL.G#", "#######"])
+    solution = solve_minigrid(env)
+    # The box becomes its key, which opens the door; 7 steps, no other order works.
+    assert solution.actions == (
+        TOGGLE, PICKUP, FORWARD, TOGGLE, FORWARD, FORWARD, FORWARD
+    )  # fmt: skip
+    assert _replay(env, solution.actions) == (solution.episode_return, True)
+
+
+def test_empty_box_in_the_way_is_removed_or_carried():
+    env = _make(["######", "#>X.G#", "######"])
+    solution = solve_minigrid(env)
+    # Toggle it away or pick it up, then 3 forwards.
+    assert solution.num_steps == 4 and solution.actions[0] in (TOGGLE, PICKUP)
+    assert _replay(env, solution.actions) == (solution.episode_return, True)
+    # A key inside a carried box does not open a door (and with no free cell to
+    # drop the box on, it cannot be taken out); the bare key does.
+    hidden = _make(["######", "#>L.G#", "######"])
+    hidden.carrying = Box("grey", contains=Key("yellow"))
+    assert not solve_minigrid(hidden).solved
+    bare = _make(["######", "#>L.G#", "######"])
+    bare.carrying = Key("yellow")
+    assert solve_minigrid(bare).actions == (TOGGLE, FORWARD, FORWARD, FORWARD)
+
+
+def test_pickup_task_hand_checked_corridor():
+    # A one-row corridor: key, locked door, the ball. The key opens the door, then
+    # must leave the hands (a pickup needs empty hands) without blocking the ball:
+    # pickup, 2 forwards, toggle (4); turn back, drop on the key's old cell (7); turn
+    # again, 2 forwards, pickup the ball (12). Dropping it anywhere else is longer.
+    rows = ["########", "#>K.L.T#", "########"]
+    env = _make_pickup(rows)
+    solution = solve_minigrid(env)
+    assert solution.num_steps == 12
+    assert solution.actions[-1] == PICKUP and solution.actions.count(DROP) == 1
+    assert solution.episode_return == _minigrid_return(12, 100)
+    assert _reference_shortest_length_any(env, horizon=12) == 12
+    assert _replay(env, solution.actions) == (solution.episode_return, True)
+    # Walking into the ball's cell is impossible and no goal exists: only the
+    # pickup ends the episode.
+    assert not solve_minigrid(_make_pickup(["########", "#>k.L.T#", "########"])).solved
+
+
+def test_pickup_task_ball_blocking_the_door_is_moved():
+    # ObstructedMaze's obstacle: a ball in front of the door; pick it up, put it
+    # aside, open the door, pick up the target behind it.
+    rows = [
+        "#######",
+        "#...#.#",
+        "#>.BDT#",
+        "#...#.#",
+        "#######",
+    ]
+    env = _make_pickup(rows)
+    solution = solve_minigrid(env)
+    reference = _reference_shortest_length_any(env, horizon=solution.num_steps)
+    assert solution.num_steps == reference
+    assert PICKUP in solution.actions[:-1] and DROP in solution.actions
+    assert _replay(env, solution.actions) == (solution.episode_return, True)
+
+
+def _describe(obj, target):
+    """A hashable description of one grid cell's object (box contents included)."""
+    if obj is None:
+        return None
+    return (
+        type(obj).__name__,
+        obj.color,
+        getattr(obj, "is_open", None),
+        getattr(obj, "is_locked", None),
+        _describe(getattr(obj, "contains", None), target),
+        obj is target,
+    )
+
+
+def _reference_shortest_length_any(env, horizon):
+    """Shortest successful episode length by a BFS whose transitions are the real
+    env's step(), for any MiniGrid task (boxes, and KeyCorridor's / ObstructedMaze's
+    'pick up env.obj' included): a state is a deep copy of the grid, the carried
+    object and the task's object, restored before each step. Shares no code with
+    the oracle; slow, for small layouts."""
+    base = env.unwrapped
+    has_target = getattr(base, "obj", None) is not None
+
+    def snapshot():
+        target = base.obj if has_target else None
+        key = (
+            tuple(int(v) for v in base.agent_pos),
+            int(base.agent_dir),
+            _describe(base.carrying, target),
+            tuple(_describe(obj, target) for obj in base.grid.grid),
+        )
+        world = copy.deepcopy((base.grid, base.carrying, target))
+        return key, (key[0], key[1], world)
+
+    def restore(saved):
+        pos, direction, world = saved
+        base.grid, base.carrying, obj = copy.deepcopy(world)
+        base.agent_pos, base.agent_dir = pos, direction
+        if has_target:
+            base.obj = obj
+        base.step_count = 0  # no truncation inside the reference search
+
+    start_key, start = snapshot()
+    seen, frontier = {start_key}, [start]
+    for depth in range(1, horizon + 1):
+        next_frontier = []
+        for saved in frontier:
+            for action in range(7):
+                restore(saved)
+                _, reward, terminated, _, _ = base.step(action)
+                if terminated and reward > 0:
+                    return depth
+                key, successor = snapshot()
+                if not terminated and key not in seen:  # lava: a dead end
+                    seen.add(key)
+                    next_frontier.append(successor)
+        frontier = next_frontier
+    return None
+
+
+def _random_pickup_rows(rng: np.random.Generator, width: int, height: int) -> list[str]:
+    """A random walled layout for the pickup task: the ball ``T`` in the last
+    column, doors, keys, balls and boxes (empty or hiding a key) between."""
+    chars = np.array(list(".#DLKkBXY"))
+    weights = [0.45, 0.12, 0.06, 0.08, 0.06, 0.04, 0.07, 0.05, 0.07]
+    inner = rng.choice(chars, size=(height - 2, width - 2), p=weights)
+    inner[rng.integers(height - 2), 0] = rng.choice(list("><v^"))
+    inner[rng.integers(height - 2), -1] = "T"
+    wall = "#" * width
+    return [wall] + ["#" + "".join(row) + "#" for row in inner] + [wall]
+
+
+NUM_RANDOM_PICKUP_LAYOUTS = 12
+
+
+def test_oracle_matches_a_bfs_over_the_real_step_on_random_pickup_layouts():
+    rng = np.random.default_rng(2)
+    solved = 0
+    for _ in range(NUM_RANDOM_PICKUP_LAYOUTS):
+        env = _make_pickup(_random_pickup_rows(rng, width=6, height=4), max_steps=16)
+        solution = solve_minigrid(env)
+        # No shorter solution (and none at all within max_steps when unsolved).
+        horizon = solution.num_steps if solution.solved else 16
+        reference = _reference_shortest_length_any(env, horizon=horizon)
+        assert solution.num_steps == (reference or 0), env.pprint_grid()
+        solved += solution.solved
+        if solution.solved:
+            assert _replay(env, solution.actions) == (solution.episode_return, True)
+    assert 3 <= solved < NUM_RANDOM_PICKUP_LAYOUTS  # both kinds of layouts were drawn
+
+
 # The paper's tasks in the real gymnasium envs ---------------------------------------
 @pytest.mark.parametrize(
     "env_id,seeds",
@@ -383,3 +582,146 @@ def test_oracle_table_and_cli(tmp_path, capsys):
     # A return of 0.8 on a 250-step task: 1 - 0.9 * t / 250 = 0.8.
     assert rows[0]["return_at_0.8_steps"] == pytest.approx(250 * 0.2 / 0.9)
     assert _minigrid_return(return_to_steps(0.8, 250), 250) == pytest.approx(0.8)
+
+
+# The hard-exploration suite's tasks --------------------------------------------------
+SUITE_SEEDS = [
+    ("MiniGrid-KeyCorridorS3R3-v0", (0, 1, 2)),
+    ("MiniGrid-KeyCorridorS4R3-v0", (0, 1)),
+    ("MiniGrid-KeyCorridorS6R3-v0", (0, 1)),
+    ("MiniGrid-DoorKey-16x16-v0", (0, 1)),
+    ("MiniGrid-MultiRoom-N6-v0", (0, 1)),
+    ("MiniGrid-ObstructedMaze-1Dlhb-v0", (0, 4)),
+    ("MiniGrid-ObstructedMaze-2Dlhb-v0", (2, 4)),
+]
+
+
+@pytest.mark.parametrize("env_id,seeds", SUITE_SEEDS)
+def test_suite_replay_in_real_env_succeeds_with_oracle_return(env_id, seeds):
+    env = gym.make(env_id)
+    pickup_task = "KeyCorridor" in env_id or "ObstructedMaze" in env_id
+    for seed, solution in zip(seeds, oracle_returns(env_id, seeds)):
+        assert solution.solved
+        reward, terminated = _replay(env, solution.actions, seed=seed)
+        assert terminated and reward > 0
+        assert reward == solution.episode_return
+        assert reward == _minigrid_return(solution.num_steps, solution.max_steps)
+        if pickup_task:  # success is the pickup of env.obj, with empty hands first
+            assert solution.actions[-1] == PICKUP
+            assert env.unwrapped.carrying is env.unwrapped.obj
+        if "ObstructedMaze" in env_id:  # the key is in a box, the door blocked
+            assert TOGGLE in solution.actions and DROP in solution.actions
+
+
+def _walk_to(env: gym.Env, wanted) -> list[int]:
+    """Plays a shortest walk to a pose facing a cell whose object satisfies
+    ``wanted``; returns its actions. Dijkstra over (position, direction) on the
+    current grid: turns and forwards cost 1, a closed unlocked door 2 (toggle, then
+    forward); objects are obstacles. Shares no code with the oracle."""
+    base = env.unwrapped
+    start = (tuple(int(v) for v in base.agent_pos), int(base.agent_dir))
+    queue, seen, tie = [(0, 0, start, ())], set(), itertools.count()
+    while queue:
+        cost, _, (pos, direction), actions = heapq.heappop(queue)
+        if (pos, direction) in seen:
+            continue
+        seen.add((pos, direction))
+        dx, dy = (int(v) for v in DIR_TO_VEC[direction])
+        front = (pos[0] + dx, pos[1] + dy)
+        cell = base.grid.get(*front)
+        if wanted(cell):
+            for action in actions:
+                _, _, terminated, _, _ = env.step(action)
+                assert not terminated
+            return list(actions)
+        moves = [(1, (pos, (direction - 1) % 4), (LEFT,))]
+        moves.append((1, (pos, (direction + 1) % 4), (RIGHT,)))
+        if cell is None or (cell.can_overlap() and cell.type != "lava"):
+            if cell is None or cell.type != "goal":
+                moves.append((1, (front, direction), (FORWARD,)))
+        elif cell.type == "door" and not cell.is_locked:
+            moves.append((2, (front, direction), (TOGGLE, FORWARD)))
+        for step_cost, successor, more in moves:
+            if successor not in seen:
+                item = (cost + step_cost, next(tie), successor, actions + more)
+                heapq.heappush(queue, item)
+    raise AssertionError("no walk reaches the wanted cell")
+
+
+def _staged_plan(env: gym.Env, seed: int) -> tuple[list[int], float, bool]:
+    """A feasible, not necessarily shortest, plan in the real env: fetch the key of
+    the locked door (if any) and open it, then for KeyCorridor drop the key behind
+    the door and pick up the object, else walk into the goal."""
+    env.reset(seed=seed)
+    base = env.unwrapped
+    plan: list[int] = []
+    reward, terminated = 0.0, False
+
+    def play(actions):
+        nonlocal reward, terminated
+        for action in actions:
+            _, reward, terminated, _, _ = env.step(action)
+            plan.append(action)
+
+    if any(o is not None and o.type == "key" for o in base.grid.grid):
+        plan += _walk_to(env, lambda c: c is not None and c.type == "key")
+        play([PICKUP])
+        locked = [o for o in base.grid.grid if o is not None and o.type == "door"]
+        locked = [o for o in locked if o.is_locked]
+        plan += _walk_to(env, lambda c: any(c is door for door in locked))
+        play([TOGGLE, FORWARD])
+    if getattr(base, "obj", None) is not None:
+        play([LEFT, LEFT, DROP, LEFT, LEFT])  # on the cell just left, behind
+        plan += _walk_to(env, lambda c: c is base.obj)
+        play([PICKUP])
+    else:
+        plan += _walk_to(env, lambda c: c is not None and c.type == "goal")
+        play([FORWARD])
+    return plan, reward, terminated
+
+
+@pytest.mark.parametrize(
+    "env_id,seeds",
+    [
+        ("MiniGrid-KeyCorridorS3R3-v0", range(4)),
+        ("MiniGrid-KeyCorridorS6R3-v0", range(2)),
+        ("MiniGrid-DoorKey-16x16-v0", range(2)),
+        ("MiniGrid-MultiRoom-N6-v0", range(2)),
+    ],
+)
+def test_oracle_is_never_beaten_by_a_staged_plan(env_id, seeds):
+    env = gym.make(env_id)
+    shorter = 0
+    for seed, solution in zip(seeds, oracle_returns(env_id, seeds)):
+        plan, reward, terminated = _staged_plan(env, seed)
+        assert terminated and reward == _minigrid_return(
+            len(plan), solution.max_steps
+        )  # the plan is feasible in the real env
+        assert solution.num_steps <= len(plan)
+        assert solution.episode_return >= reward
+        shorter += solution.num_steps < len(plan)
+    if "KeyCorridor" in env_id:
+        assert shorter  # the staged drop is not always the best place for the key
+
+
+@pytest.mark.parametrize(
+    "env_id", ["MiniGrid-KeyCorridorS3R3-v0", "MiniGrid-ObstructedMaze-1Dlhb-v0"]
+)
+def test_envpool_layouts_rebuilt_in_minigrid_are_solved(env_id):
+    pytest.importorskip("envpool")
+    from torchrl_surprise.envs.envpool import (
+        EnvPoolMiniGridEnv,
+        minigrid_env_from_envpool_state,
+    )
+
+    pool = EnvPoolMiniGridEnv(env_id, num_envs=2, seed=0)
+    pool.reset()
+    states = pool.debug_states()
+    pool.close()
+    for state in states:
+        twin = minigrid_env_from_envpool_state(state, env_id)
+        solution = solve_minigrid(twin)
+        assert solution.solved and solution.actions[-1] == PICKUP
+        for action in solution.actions:
+            _, reward, terminated, _, _ = twin.step(action)
+        assert terminated and reward == solution.episode_return

@@ -1,13 +1,17 @@
 """A MiniGrid oracle: the shortest action sequence that solves an episode.
 
 :func:`solve_minigrid` reads the full state of a reset MiniGrid env (the layout, the
-agent's position and direction, what it carries, the doors' states, where the keys
-and balls are) and runs a breadth-first search over abstract states with MiniGrid's
-own action semantics (minigrid 3.2.0, ``MiniGridEnv.step``): the first goal reached
-is reached by a shortest sequence, and its return is MiniGrid's
-``1 - 0.9 * (step_count / max_steps)``, or 0 when no sequence of at most
-``max_steps`` actions reaches a goal. The oracle sees the whole grid; the agent sees
-a 7x7 egocentric view, so the agent's best achievable return is lower.
+agent's position and direction, what it carries, the doors' states, where the keys,
+balls and boxes are and what the boxes hold) and runs an A* search over abstract
+states with MiniGrid's own action semantics (minigrid 3.2.0, ``MiniGridEnv.step``):
+the first success popped is reached by a shortest sequence (the search's lower bound
+never overestimates, and it prunes only moves that no shortest sequence makes; see
+:func:`solve_minigrid`), so the number of steps is optimal, not a bound. Its return is
+MiniGrid's ``1 - 0.9 * (step_count / max_steps)``, or 0 when no sequence of at most
+``max_steps`` actions succeeds. Success is reaching a goal (MultiRoom, DoorKey, ...)
+or, in KeyCorridor and ObstructedMaze, a pickup that leaves the agent carrying the
+task's object (``env.obj``). The oracle sees the whole grid; the agent sees a 7x7
+egocentric view, so the agent's best achievable return is lower.
 
 :func:`oracle_returns` solves an env id for a list of seeds, :func:`oracle_table`
 summarises several ids (one row each, the columns of :data:`ORACLE_CSV_COLUMNS`),
@@ -17,16 +21,21 @@ and the command line writes that table as a CSV::
         --envs MiniGrid-MultiRoom-N3-S4-v0 MiniGrid-DoorKey-5x5-v0 --seeds 1000 \\
         --out docs/results/oracle/oracle_returns.csv
 
-Layouts may hold walls, floors, doors (open, closed or locked), keys, balls, goals
-and lava. Anything else (a box, whose toggle replaces it by its contents, or a
-subclass with its own semantics) and envs that override ``step`` or ``_reward``
-(Fetch, Unlock, DynamicObstacles, ...) are refused rather than solved wrongly.
+Layouts may hold walls, floors, doors (open, closed or locked), keys, balls, boxes
+(toggled, a box is replaced by what it holds), goals and lava. Anything else (a
+subclass with its own semantics) and envs that override ``step`` or ``_reward`` in
+another way (Fetch, Unlock, DynamicObstacles, ...) are refused rather than solved
+wrongly. Over the hard-exploration suite (KeyCorridorS3R3/S4R3/S6R3,
+DoorKey-16x16, MultiRoom-N6, ObstructedMaze-1Dlhb/2Dlhb) a layout takes from a
+millisecond to about a second (``benchmarks/suite_oracle.py``).
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import heapq
+import itertools
 import statistics
 import sys
 from collections.abc import Iterable, Sequence
@@ -37,7 +46,9 @@ from typing import Any
 import gymnasium as gym
 from minigrid.core.actions import Actions
 from minigrid.core.constants import DIR_TO_VEC
-from minigrid.core.world_object import Ball, Door, Floor, Goal, Key, Lava, Wall
+from minigrid.core.world_object import Ball, Box, Door, Floor, Goal, Key, Lava, Wall
+from minigrid.envs.keycorridor import KeyCorridorEnv
+from minigrid.envs.obstructedmaze import ObstructedMazeEnv
 from minigrid.minigrid_env import MiniGridEnv
 
 from torchrl_surprise.envs.minigrid import register_minigrid_envs
@@ -47,6 +58,7 @@ __all__ = [
     "OracleSolution",
     "format_oracle_table",
     "oracle_returns",
+    "oracle_row",
     "oracle_table",
     "return_to_steps",
     "solve_minigrid",
@@ -74,20 +86,26 @@ seeds; ``max_episode_steps`` is MiniGrid's ``max_steps`` for the id;
 ``return_at_0.8_steps`` is the episode length whose return is 0.8.
 """
 
-# Cell kinds of the static layout. Keys and balls are not cell kinds: they move, so
-# they live in the dynamic state; the cell under them is EMPTY (MiniGrid stores one
-# object per cell, so a key never sits on a floor, door or goal).
+# Cell kinds of the static layout. Keys, balls and boxes are not cell kinds: they move
+# (and a toggled box vanishes), so they live in the dynamic state; the cell under them
+# is EMPTY (MiniGrid stores one object per cell, so a key never sits on a door).
 _EMPTY, _WALL, _FLOOR, _GOAL, _LAVA, _DOOR = range(6)
 # Door state bits, as MiniGrid's two booleans: a door built open and locked is
 # passable and still needs the key to be toggled.
 _OPEN, _LOCKED = 1, 2
-_CARRIED = -1  # object location of the carried object
-_NOTHING = -1  # carried-object index when the hands are empty
+# Object locations that are not a cell: carried, inside a box, or gone (a toggled box).
+_CARRIED, _IN_BOX, _GONE = -1, -2, -3
+_NOTHING = -1  # carried-object index when the hands are empty (and "no object")
+_KEY, _BALL, _BOX = range(3)
 
 _LEFT, _RIGHT, _FORWARD = int(Actions.left), int(Actions.right), int(Actions.forward)
 _PICKUP, _DROP, _TOGGLE = int(Actions.pickup), int(Actions.drop), int(Actions.toggle)
 _STATIC_KIND = {Wall: _WALL, Floor: _FLOOR, Goal: _GOAL, Lava: _LAVA}
-_MOVABLE = (Key, Ball)
+_MOVABLE = {Key: _KEY, Ball: _BALL, Box: _BOX}
+# step() overrides that add one rule to MiniGridEnv.step: a pickup action that leaves
+# the agent carrying ``env.obj`` ends the episode with ``_reward()``.
+_PICKUP_TASK_STEPS = (KeyCorridorEnv.step, ObstructedMazeEnv.step)
+_UNREACHABLE = 1 << 30
 
 
 @dataclass(frozen=True)
@@ -96,13 +114,15 @@ class OracleSolution:
 
     Attributes:
         actions: a shortest action sequence (MiniGrid action ints: left=0, right=1,
-            forward=2, pickup=3, drop=4, toggle=5) whose last action reaches a goal;
-            empty when the episode cannot be solved.
+            forward=2, pickup=3, drop=4, toggle=5) whose last action ends the
+            episode with success (reaching a goal, or picking up the task's object
+            in KeyCorridor and ObstructedMaze); empty when the episode cannot be
+            solved.
         num_steps: ``len(actions)``, 0 when unsolved.
-        solved: whether a goal can be reached before MiniGrid truncates the episode.
+        solved: whether the task can be solved before MiniGrid truncates the episode.
         episode_return: the return MiniGrid pays for playing ``actions``:
             ``1 - 0.9 * (step_count / max_steps)`` with ``step_count`` the env's step
-            count at the goal, and 0 when unsolved.
+            count at success, and 0 when unsolved.
         max_steps: MiniGrid's ``max_steps`` of the episode.
     """
 
@@ -120,65 +140,90 @@ class _Layout:
     width: int
     kinds: tuple[int, ...]  # per cell, one of the _EMPTY..._DOOR kinds
     door_index: tuple[int, ...]  # per cell, index into the doors (-1 if no door)
+    door_cells: tuple[int, ...]
     door_colors: tuple[str, ...]
-    object_is_key: tuple[bool, ...]
+    object_kinds: tuple[int, ...]  # per object, _KEY, _BALL or _BOX
     object_colors: tuple[str, ...]
-    # Initial dynamic state: agent cell and direction, carried object, doors, objects.
-    start: tuple[int, int, int, tuple[int, ...], tuple[int, ...]]
+    box_contents: tuple[int, ...]  # per object, the object inside it (or _NOTHING)
+    target: int  # the object whose pickup ends the episode (or _NOTHING)
+    # Initial dynamic state: agent cell and direction, carried object, doors,
+    # objects' locations, and the object that may not be picked up next (_NOTHING).
+    start: tuple[int, int, int, tuple[int, ...], tuple[int, ...], int]
 
 
-def _read_layout(env: MiniGridEnv) -> _Layout:
+def _read_layout(env: MiniGridEnv, target: Any) -> _Layout:
     grid = env.grid
-    width, height = grid.width, grid.height
-    kinds = [_EMPTY] * (width * height)
-    door_index = [-1] * (width * height)
+    width = grid.width
+    kinds = [_EMPTY] * (width * grid.height)
+    door_index = [-1] * (width * grid.height)
+    door_cells: list[int] = []
     door_colors: list[str] = []
     door_states: list[int] = []
-    movable: list[tuple[Any, int]] = []  # (object, cell or _CARRIED)
+    objects: list[Any] = []
+    locations: list[int] = []
+    contents: list[int] = []
+
+    def add_object(obj: Any, location: int, where: str) -> int:
+        # Exact classes only: a subclass may change can_pickup / toggle / ... and
+        # the search would then be wrong without failing.
+        if type(obj) not in _MOVABLE:
+            raise ValueError(
+                f"solve_minigrid supports walls, floors, doors, keys, balls, boxes, "
+                f"goals and lava; found {type(obj).__name__} {where}"
+            )
+        index = len(objects)
+        objects.append(obj)
+        locations.append(location)
+        contents.append(_NOTHING)
+        if type(obj) is Box and obj.contains is not None:
+            contents[index] = add_object(obj.contains, _IN_BOX, f"in a box {where}")
+        return index
+
     for cell, obj in enumerate(grid.grid):
         if obj is None:
             continue
-        # Exact classes only: a subclass may change can_overlap / toggle / ... and
-        # the search would then be wrong without failing.
         cls = type(obj)
         if cls in _STATIC_KIND:
             kinds[cell] = _STATIC_KIND[cls]
         elif cls is Door:
             kinds[cell] = _DOOR
             door_index[cell] = len(door_colors)
+            door_cells.append(cell)
             door_colors.append(obj.color)
             door_states.append(_OPEN * obj.is_open | _LOCKED * obj.is_locked)
-        elif cls in _MOVABLE:
-            movable.append((obj, cell))
         else:
-            raise ValueError(
-                f"solve_minigrid supports walls, floors, doors, keys, balls, goals and "
-                f"lava; found {cls.__name__} at {(cell % width, cell // width)}"
-            )
+            add_object(obj, cell, f"at {(cell % width, cell // width)}")
     carrying = _NOTHING
     if env.carrying is not None:
-        if type(env.carrying) not in _MOVABLE:
+        carrying = add_object(env.carrying, _CARRIED, "in the agent's hands")
+    target_index = _NOTHING
+    if target is not None:
+        found = [i for i, obj in enumerate(objects) if obj is target]
+        if not found:
             raise ValueError(
-                f"solve_minigrid: the agent carries an unsupported "
-                f"{type(env.carrying).__name__}"
+                f"solve_minigrid: the object to pick up ({target.color} {target.type}, "
+                "env.obj) is not in the grid"
             )
-        carrying = len(movable)
-        movable.append((env.carrying, _CARRIED))
+        (target_index,) = found
     x, y = (int(v) for v in env.agent_pos)
     start = (
         y * width + x,
         int(env.agent_dir),
         carrying,
         tuple(door_states),
-        tuple(cell for _, cell in movable),
+        tuple(locations),
+        _NOTHING,
     )
     return _Layout(
         width=width,
         kinds=tuple(kinds),
         door_index=tuple(door_index),
+        door_cells=tuple(door_cells),
         door_colors=tuple(door_colors),
-        object_is_key=tuple(type(obj) is Key for obj, _ in movable),
-        object_colors=tuple(obj.color for obj, _ in movable),
+        object_kinds=tuple(_MOVABLE[type(obj)] for obj in objects),
+        object_colors=tuple(obj.color for obj in objects),
+        box_contents=tuple(contents),
+        target=target_index,
         start=start,
     )
 
@@ -197,77 +242,323 @@ def _front_cells(width: int, height: int) -> list[tuple[int, ...]]:
     return fronts
 
 
-def _shortest_actions(layout: _Layout, horizon: int) -> tuple[int, ...] | None:
-    """Breadth-first search; the actions of a shortest path to a goal, or None.
+class _LowerBound:
+    """An admissible estimate of the steps left to success (A*'s heuristic).
 
-    Only actions that change the state are expanded (a blocked forward, a pickup
-    with full hands, ``done``, ... are no-ops in MiniGrid and never shorten a path).
+    Distances are counted on a relaxed grid: every cell but walls and lava is
+    passable (doors, objects and boxes included), so a distance in cells is at most
+    the number of forwards the agent needs. While a locked, closed door separates
+    the agent from its goal (or object), some such door must be unlocked, with a key
+    of its colour: the agent goes next to the key (or the box hiding it), picks it
+    up, goes next to the door, toggles it, then reaches the goal; each leg is
+    bounded below by its relaxed distance.
+    """
+
+    def __init__(self, layout: _Layout, fronts: list[tuple[int, ...]]) -> None:
+        self.layout = layout
+        self.width = layout.width
+        kinds = layout.kinds
+        self.neighbours = [
+            tuple(f for f in fronts[c] if f >= 0 and kinds[f] not in (_WALL, _LAVA))
+            for c in range(len(kinds))
+        ]
+        self.goals = tuple(c for c, kind in enumerate(kinds) if kind == _GOAL)
+        self._distances: dict[Any, list[int]] = {}
+        self._regions: dict[tuple[int, ...], list[int]] = {}
+
+    def distances(self, sources: Any) -> list[int]:
+        """Relaxed distance in cells from each cell to the nearest of ``sources``."""
+        cached = self._distances.get(sources)
+        if cached is not None:
+            return cached
+        starts = (sources,) if isinstance(sources, int) else sources
+        distance = [_UNREACHABLE] * len(self.neighbours)
+        frontier = list(starts)
+        for cell in frontier:
+            distance[cell] = 0
+        depth = 0
+        while frontier:
+            depth += 1
+            next_frontier = []
+            for cell in frontier:
+                for other in self.neighbours[cell]:
+                    if distance[other] == _UNREACHABLE:
+                        distance[other] = depth
+                        next_frontier.append(other)
+            frontier = next_frontier
+        self._distances[sources] = distance
+        return distance
+
+    def regions(self, doors: tuple[int, ...]) -> list[int]:
+        """Connected components of the relaxed grid minus locked, closed doors."""
+        cached = self._regions.get(doors)
+        if cached is not None:
+            return cached
+        blocked = {
+            self.layout.door_cells[i] for i, state in enumerate(doors) if state == 2
+        }
+        labels = [-1] * len(self.neighbours)
+        for seed in range(len(labels)):
+            if labels[seed] >= 0 or self.layout.kinds[seed] in (_WALL, _LAVA):
+                continue
+            labels[seed] = seed
+            if seed in blocked:
+                continue
+            stack = [seed]
+            while stack:
+                cell = stack.pop()
+                for other in self.neighbours[cell]:
+                    if labels[other] < 0 and other not in blocked:
+                        labels[other] = seed
+                        stack.append(other)
+        self._regions[doors] = labels
+        return labels
+
+    def _where(
+        self, index: int, objects: tuple[int, ...], pos: int
+    ) -> tuple[int, int, bool]:
+        """(cell, boxes, carried): the cell of an object or of the outermost box
+        around it (the agent's cell if that box is carried), how many boxes must be
+        toggled to free it, and whether the agent carries it (inside its boxes)."""
+        contents = self.layout.box_contents
+        boxes = 0
+        while objects[index] == _IN_BOX:
+            index = contents.index(index)
+            boxes += 1
+        if objects[index] == _CARRIED:
+            return pos, boxes, True
+        return objects[index], boxes, False
+
+    def _aligned(self, pos: int, direction: int, cells: tuple[int, ...]) -> bool:
+        """Whether one of ``cells`` lies straight ahead (else a turn is needed)."""
+        x, y = pos % self.width, pos // self.width
+        dx, dy = (int(v) for v in DIR_TO_VEC[direction])
+        for cell in cells:
+            cx, cy = cell % self.width, cell // self.width
+            if (dx and cy == y and (cx - x) * dx > 0) or (
+                dy and cx == x and (cy - y) * dy > 0
+            ):
+                return True
+        return False
+
+    def __call__(self, state: tuple) -> int:
+        pos, direction, carrying, doors, objects, _ = state
+        layout = self.layout
+        target = layout.target
+        if target == _NOTHING:
+            if not self.goals:
+                return _UNREACHABLE
+            finish_cells, finish = self.goals, self.distances(self.goals)
+            cost = finish[pos] + (not self._aligned(pos, direction, self.goals))
+            after_door_drop = 0
+        else:
+            target_cell, boxes, carried = self._where(target, objects, pos)
+            finish_cells = (target_cell,)
+            finish = self.distances(target_cell)
+            # Walk next to the object (turning unless it is straight ahead), empty
+            # the hands (dropping a box that hides it), toggle the boxes around it,
+            # pick it up.
+            cost = (
+                max(finish[pos] - 1, 0)
+                + (not carried and not self._aligned(pos, direction, finish_cells))
+                + (carrying != _NOTHING)
+                + boxes
+                + 1
+            )
+            after_door_drop = 1  # the key used on a door must be dropped
+        if cost >= _UNREACHABLE:
+            return _UNREACHABLE
+        labels = self.regions(doors)
+        if any(labels[cell] == labels[pos] for cell in finish_cells):
+            return cost
+        # A locked, closed door is in the way: unlock one.
+        best = _UNREACHABLE
+        door_colors, door_cells = layout.door_colors, layout.door_cells
+        kinds, colors = layout.object_kinds, layout.object_colors
+        for door, door_state in enumerate(doors):
+            if door_state != _LOCKED:
+                continue
+            door_cell = door_cells[door]
+            to_door = self.distances(door_cell)
+            rest = (
+                max(finish[door_cell] - 1, 0)
+                if target == _NOTHING
+                else max(finish[door_cell] - 2, 0) + after_door_drop + 1
+            )
+            for key, location in enumerate(objects):
+                if (
+                    kinds[key] != _KEY
+                    or colors[key] != door_colors[door]
+                    or location == _GONE
+                ):
+                    continue
+                if location == _CARRIED:
+                    legs = max(to_door[pos] - 1, 0) + 1
+                else:
+                    source, boxes, carried = self._where(key, objects, pos)
+                    from_source = self.distances(source)
+                    # A key in a carried box appears next to the agent, not on it.
+                    margin = 3 if carried else 2
+                    legs = (
+                        max(from_source[pos] - 1, 0)
+                        + (carrying != _NOTHING)  # drop what the hands hold
+                        + boxes
+                        + 1  # pickup
+                        + max(from_source[door_cell] - margin, 0)
+                        + 1  # toggle
+                    )
+                best = min(best, legs + rest)
+        return best
+
+
+def _shortest_actions(layout: _Layout, horizon: int) -> tuple[int, ...] | None:
+    """A* search; the actions of a shortest successful sequence, or None.
+
+    Transitions are those of ``MiniGridEnv.step`` (and of the pickup tasks' step);
+    pruned are only moves that no shortest sequence makes (each is proved so in
+    ``solve_minigrid``'s docstring): no-ops, closing a door, picking up again the
+    object just dropped, and a drop after which no other object can be picked up.
     """
     width = layout.width
     kinds, door_index = layout.kinds, layout.door_index
-    door_colors = layout.door_colors
-    object_is_key, object_colors = layout.object_is_key, layout.object_colors
+    door_colors, object_kinds = layout.door_colors, layout.object_kinds
+    object_colors, box_contents = layout.object_colors, layout.box_contents
+    target = layout.target
     fronts = _front_cells(width, len(kinds) // width)
+    lower_bound = _LowerBound(layout, fronts)
+
+    def another_pickup_possible(
+        pos: int, doors: tuple[int, ...], objects: tuple[int, ...], dropped: int
+    ) -> bool:
+        # With empty hands, until the next pickup only unlocked doors and boxes can
+        # change: flood the cells reachable that way (box cells count as passable)
+        # and look for an object other than ``dropped`` (or a box's contents) next
+        # to them.
+        seen = {pos}
+        stack = [pos]
+        while stack:
+            cell = stack.pop()
+            for other in fronts[cell]:
+                if other < 0 or other in seen:
+                    continue
+                kind = kinds[other]
+                if other in objects:
+                    held = objects.index(other)
+                    if held != dropped or box_contents[held] != _NOTHING:
+                        return True
+                    if object_kinds[held] != _BOX:
+                        continue
+                elif kind == _DOOR:
+                    if doors[door_index[other]] == _LOCKED:
+                        continue
+                elif kind not in (_EMPTY, _FLOOR):
+                    continue
+                seen.add(other)
+                stack.append(other)
+        return False
 
     start = layout.start
+    if start[2] != _NOTHING and start[2] == target:
+        return (_PICKUP,)  # already holding the object: any pickup action succeeds
+    best_cost = {start: 0}
     parents: dict[tuple, tuple[tuple, int] | None] = {start: None}
-    frontier = [start]
-    for _ in range(horizon):
-        next_frontier = []
-        for state in frontier:
-            pos, direction, carrying, doors, objects = state
-            front = fronts[pos][direction]
-            if front < 0:
-                # MiniGrid's step() reads the front cell before any action, and
-                # asserts on a cell outside the grid: every action fails here.
-                continue
-            successors = [
-                (_LEFT, (pos, (direction - 1) % 4, carrying, doors, objects)),
-                (_RIGHT, (pos, (direction + 1) % 4, carrying, doors, objects)),
-            ]
-            kind = kinds[front]
-            occupied = front in objects
-            if kind == _GOAL:
-                return _trace(parents, state) + (_FORWARD,)
-            if (
-                kind == _FLOOR
-                or (kind == _EMPTY and not occupied)
-                or (kind == _DOOR and doors[door_index[front]] & _OPEN)
-            ):
+    done = ("done",)  # the success pseudo-state
+    tie = itertools.count()
+    start_bound = lower_bound(start)
+    if start_bound > horizon:
+        return None
+    queue = [(start_bound, 0, next(tie), start)]
+    while queue:
+        _, negative_cost, _, state = heapq.heappop(queue)
+        if state is done:
+            return _trace(parents, done)
+        cost = -negative_cost
+        if cost > best_cost[state]:
+            continue  # a stale entry: reached more cheaply since
+        pos, direction, carrying, doors, objects, forbidden = state
+        front = fronts[pos][direction]
+        if front < 0:
+            # MiniGrid's step() reads the front cell before any action, and
+            # asserts on a cell outside the grid: every action fails here.
+            continue
+        successors = [
+            (_LEFT, (pos, (direction - 1) % 4, carrying, doors, objects, forbidden)),
+            (_RIGHT, (pos, (direction + 1) % 4, carrying, doors, objects, forbidden)),
+        ]
+        kind = kinds[front]
+        occupant = objects.index(front) if front in objects else _NOTHING
+        success = None
+        if kind == _GOAL:
+            success = _FORWARD
+        elif (
+            kind == _FLOOR
+            or (kind == _EMPTY and occupant == _NOTHING)
+            or (kind == _DOOR and doors[door_index[front]] & _OPEN)
+        ):
+            successors.append(
+                (_FORWARD, (front, direction, carrying, doors, objects, forbidden))
+            )
+        # Lava ends the episode with return 0: a dead end, never expanded.
+        if occupant != _NOTHING and carrying == _NOTHING and occupant != forbidden:
+            if occupant == target:
+                success = _PICKUP
+            else:
+                moved = objects[:occupant] + (_CARRIED,) + objects[occupant + 1 :]
                 successors.append(
-                    (_FORWARD, (front, direction, carrying, doors, objects))
+                    (_PICKUP, (pos, direction, occupant, doors, moved, _NOTHING))
                 )
-            # Lava ends the episode with return 0: a dead end, never expanded.
-            if occupied and carrying == _NOTHING:
-                picked = objects.index(front)
-                moved = objects[:picked] + (_CARRIED,) + objects[picked + 1 :]
-                successors.append((_PICKUP, (pos, direction, picked, doors, moved)))
-            if carrying != _NOTHING and kind == _EMPTY and not occupied:
-                moved = objects[:carrying] + (front,) + objects[carrying + 1 :]
-                successors.append((_DROP, (pos, direction, _NOTHING, doors, moved)))
-            if kind == _DOOR:
-                door = door_index[front]
-                door_state = doors[door]
-                if not door_state & _LOCKED:
-                    door_state ^= _OPEN
-                elif (
-                    carrying != _NOTHING
-                    and object_is_key[carrying]
-                    and object_colors[carrying] == door_colors[door]
-                ):
-                    door_state = _OPEN
-                if door_state != doors[door]:
-                    toggled = doors[:door] + (door_state,) + doors[door + 1 :]
-                    successors.append(
-                        (_TOGGLE, (pos, direction, carrying, toggled, objects))
-                    )
-            for action, successor in successors:
-                if successor not in parents:
-                    parents[successor] = (state, action)
-                    next_frontier.append(successor)
-        if not next_frontier:
-            return None
-        frontier = next_frontier
+        if carrying != _NOTHING and kind == _EMPTY and occupant == _NOTHING:
+            moved = objects[:carrying] + (front,) + objects[carrying + 1 :]
+            if another_pickup_possible(pos, doors, moved, carrying):
+                successors.append(
+                    (_DROP, (pos, direction, _NOTHING, doors, moved, carrying))
+                )
+        if kind == _DOOR:
+            door = door_index[front]
+            door_state = doors[door]
+            if door_state == 0:  # closed: open it (opened doors are never closed)
+                door_state = _OPEN
+            elif (
+                door_state & _LOCKED
+                and carrying != _NOTHING
+                and object_kinds[carrying] == _KEY
+                and object_colors[carrying] == door_colors[door]
+            ):
+                door_state = _OPEN
+            if door_state != doors[door]:
+                toggled = doors[:door] + (door_state,) + doors[door + 1 :]
+                successors.append(
+                    (_TOGGLE, (pos, direction, carrying, toggled, objects, forbidden))
+                )
+        elif occupant != _NOTHING and object_kinds[occupant] == _BOX:
+            # Toggling a box replaces it by its contents (possibly nothing).
+            inside = box_contents[occupant]
+            moved = list(objects)
+            moved[occupant] = _GONE
+            if inside != _NOTHING:
+                moved[inside] = front
+            successors.append(
+                (_TOGGLE, (pos, direction, carrying, doors, tuple(moved), forbidden))
+            )
+        if success is not None:
+            if cost + 1 <= horizon and cost + 1 < best_cost.get(done, _UNREACHABLE):
+                best_cost[done] = cost + 1
+                parents[done] = (state, success)
+                heapq.heappush(queue, (cost + 1, -(cost + 1), next(tie), done))
+            continue
+        successor_cost = cost + 1
+        for action, successor in successors:
+            if successor_cost >= best_cost.get(successor, _UNREACHABLE):
+                continue
+            bound = lower_bound(successor)
+            if successor_cost + bound > horizon:
+                continue
+            best_cost[successor] = successor_cost
+            parents[successor] = (state, action)
+            heapq.heappush(
+                queue,
+                (successor_cost + bound, -successor_cost, next(tie), successor),
+            )
     return None
 
 
@@ -281,36 +572,63 @@ def _trace(parents: dict[tuple, tuple[tuple, int] | None], state: tuple) -> tupl
     return tuple(reversed(actions))
 
 
-def _check_semantics(env: MiniGridEnv) -> None:
+def _check_semantics(env: MiniGridEnv) -> Any:
+    """The object whose pickup ends the episode (None for goal tasks), or raises."""
     cls = type(env)
-    if cls.step is not MiniGridEnv.step or cls._reward is not MiniGridEnv._reward:
-        raise ValueError(
-            f"solve_minigrid: {cls.__name__} overrides MiniGridEnv.step or _reward; "
-            "its task differs from 'reach the goal', and the oracle would be wrong"
-        )
+    if cls._reward is MiniGridEnv._reward:
+        if cls.step is MiniGridEnv.step:
+            return None
+        if cls.step in _PICKUP_TASK_STEPS:
+            if getattr(env, "obj", None) is None:
+                raise ValueError(f"solve_minigrid: {cls.__name__} has no env.obj")
+            return env.obj
+    raise ValueError(
+        f"solve_minigrid: {cls.__name__} overrides MiniGridEnv.step or _reward; its "
+        "task is neither 'reach the goal' nor 'pick up env.obj' (KeyCorridor, "
+        "ObstructedMaze), and the oracle would be wrong"
+    )
 
 
 def solve_minigrid(env: gym.Env) -> OracleSolution:
-    """Finds a shortest action sequence that reaches a goal, by breadth-first search.
+    """Finds a shortest action sequence that solves the episode, by A* search.
 
     The search starts from the env's current state (normally right after
     ``reset(seed=...)``; mid-episode, the steps already taken count towards
     ``max_steps`` and the return, as they do in MiniGrid) and does not modify the
-    env. States are (agent cell, direction, carried object, door states, key and
-    ball positions); transitions are those of ``MiniGridEnv.step``. Reaching lava
-    ends the episode with return 0, so lava cells are avoided.
+    env. States are (agent cell, direction, carried object, door states, key, ball
+    and box locations, the object just dropped); transitions are those of
+    ``MiniGridEnv.step``, plus KeyCorridor's and ObstructedMaze's rule that a pickup
+    of ``env.obj`` succeeds. Reaching lava ends the episode with return 0, so lava
+    cells are avoided.
+
+    The search skips moves that no shortest sequence makes, so what it returns is
+    optimal: (1) no-ops (a blocked forward, ``done``, ...). (2) Closing a door: the
+    same sequence without that toggle (and without later toggles and forwards that
+    only undo it) still succeeds, one step sooner; nothing needs a door closed.
+    (3) Picking up again the object just dropped, before any other pickup: removing
+    the drop and that pickup leaves a valid sequence (with empty hands between them
+    the agent toggled only unlocked doors and boxes, which carrying does not
+    change), two steps shorter. (4) A drop after which no object but the dropped one
+    can be picked up: a drop never followed by a pickup can be removed, and by (3)
+    the next pickup is of another object, which must then be reachable through the
+    cells that empty hands can clear (open or unlocked doors, boxes). The A*
+    estimate is the relaxed distance (walls and lava only) to the goal or the
+    object, plus the turn, drop and pickup it needs, and, while a locked door
+    separates them, the legs to a key of that door's colour and to the door; it
+    never overestimates, and states are re-expanded when reached more cheaply.
 
     Args:
         env: a MiniGrid env, possibly wrapped (``gym.make`` output); its
             ``unwrapped`` env is read.
 
     Returns:
-        The shortest solution, or an unsolved one (no actions, return 0) when no
-        goal can be reached within the ``max_steps - step_count`` steps left.
+        The shortest solution, or an unsolved one (no actions, return 0) when the
+        task cannot be solved within the ``max_steps - step_count`` steps left.
 
     Raises:
-        ValueError: the grid holds an object this search does not model (a box), or
-            the env overrides ``step`` or ``_reward``.
+        ValueError: the grid holds an object this search does not model, the env
+            overrides ``step`` or ``_reward`` with another task, or its ``env.obj``
+            is not in the grid.
 
     Examples:
         >>> import gymnasium as gym
@@ -331,10 +649,10 @@ def solve_minigrid(env: gym.Env) -> OracleSolution:
         raise TypeError(f"solve_minigrid needs a MiniGridEnv, got {type(base)}")
     if base.grid is None or base.agent_pos is None:
         raise ValueError("solve_minigrid: reset the env first")
-    _check_semantics(base)
+    target = _check_semantics(base)
     max_steps = int(base.max_steps)
     step_count = int(base.step_count)
-    actions = _shortest_actions(_read_layout(base), max_steps - step_count)
+    actions = _shortest_actions(_read_layout(base, target), max_steps - step_count)
     if actions is None:
         return OracleSolution((), 0, False, 0.0, max_steps)
     # The same expression as MiniGridEnv._reward, so the floats are equal.
@@ -390,6 +708,43 @@ def return_to_steps(episode_return: float, max_steps: int) -> float:
     return (1 - episode_return) * max_steps / 0.9
 
 
+def oracle_row(env_id: str, solutions: Sequence[OracleSolution]) -> dict[str, Any]:
+    """The summary row (:data:`ORACLE_CSV_COLUMNS`) of one task's solutions.
+
+    Args:
+        env_id: the task's id, written in the ``env`` column.
+        solutions: one :class:`OracleSolution` per episode (from :func:`oracle_returns`,
+            or from layouts of another backend solved by :func:`solve_minigrid`), all
+            with the same ``max_steps``.
+
+    Examples:
+        >>> solutions = oracle_returns("MiniGrid-DoorKey-5x5-v0", range(3))
+        >>> row = oracle_row("MiniGrid-DoorKey-5x5-v0", solutions)
+        >>> row["seeds"], row["min_steps"], row["max_steps"], row["solved_fraction"]
+        (3, 7, 13, 1.0)
+    """
+    returns = [s.episode_return for s in solutions]
+    steps = [s.num_steps for s in solutions if s.solved]
+    max_steps = {s.max_steps for s in solutions}
+    # The tasks fix max_steps per id; a mix would make the 0.8-return length
+    # meaningless.
+    if len(max_steps) != 1:
+        raise ValueError(f"oracle_row: {env_id} mixes max_steps {sorted(max_steps)}")
+    (max_episode_steps,) = max_steps
+    return {
+        "env": env_id,
+        "seeds": len(solutions),
+        "mean_return": statistics.fmean(returns),
+        "std_return": statistics.pstdev(returns),
+        "mean_steps": statistics.fmean(steps) if steps else float("nan"),
+        "min_steps": min(steps, default=0),
+        "max_steps": max(steps, default=0),
+        "max_episode_steps": max_episode_steps,
+        "solved_fraction": len(steps) / len(solutions),
+        "return_at_0.8_steps": return_to_steps(0.8, max_episode_steps),
+    }
+
+
 def oracle_table(env_ids: Sequence[str], num_seeds: int) -> list[dict[str, Any]]:
     """One summary row per env id over seeds ``0 .. num_seeds - 1``.
 
@@ -398,7 +753,7 @@ def oracle_table(env_ids: Sequence[str], num_seeds: int) -> list[dict[str, Any]]
         num_seeds: the number of seeds per id.
 
     Returns:
-        Rows keyed by :data:`ORACLE_CSV_COLUMNS`.
+        Rows keyed by :data:`ORACLE_CSV_COLUMNS` (see :func:`oracle_row`).
 
     Examples:
         >>> (row,) = oracle_table(["MiniGrid-DoorKey-5x5-v0"], 3)
@@ -407,29 +762,10 @@ def oracle_table(env_ids: Sequence[str], num_seeds: int) -> list[dict[str, Any]]
         >>> row["max_episode_steps"], round(row["return_at_0.8_steps"], 2)
         (250, 55.56)
     """
-    rows = []
-    for env_id in env_ids:
-        solutions = oracle_returns(env_id, range(num_seeds))
-        returns = [s.episode_return for s in solutions]
-        steps = [s.num_steps for s in solutions if s.solved]
-        # MultiRoom and DoorKey fix max_steps per id; a mix would make the
-        # 0.8-return length meaningless.
-        (max_episode_steps,) = {s.max_steps for s in solutions}
-        rows.append(
-            {
-                "env": env_id,
-                "seeds": num_seeds,
-                "mean_return": statistics.fmean(returns),
-                "std_return": statistics.pstdev(returns),
-                "mean_steps": statistics.fmean(steps) if steps else float("nan"),
-                "min_steps": min(steps, default=0),
-                "max_steps": max(steps, default=0),
-                "max_episode_steps": max_episode_steps,
-                "solved_fraction": len(steps) / num_seeds,
-                "return_at_0.8_steps": return_to_steps(0.8, max_episode_steps),
-            }
-        )
-    return rows
+    return [
+        oracle_row(env_id, oracle_returns(env_id, range(num_seeds)))
+        for env_id in env_ids
+    ]
 
 
 def _format_value(value: Any) -> str:
