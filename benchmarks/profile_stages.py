@@ -34,19 +34,19 @@ from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-A2C = ROOT / "recipes" / "a2c_minigrid" / "main.py"
+MINIGRID = ROOT / "recipes" / "minigrid" / "main.py"
 DDPG = ROOT / "recipes" / "ddpg_mujoco" / "main.py"
 
 # (marker substring, stage): a stage runs from its marker line to the next marker.
-A2C_STAGES = [
+MINIGRID_STAGES = [
     ("for data in collector:", "collection (collector: env + policy)"),
     ("frames += data.numel()", "bookkeeping (episode stats)"),
-    ("bonus_transform.snapshot()", "bonus model training"),
+    ('if variant == "info_gain":', "bonus model training"),
     ("# Step 2:", "bonus forward"),
     ("data = advantage(data)", "advantage (GAE)"),
-    ("loss_td = loss_module(data)", "A2C loss + backward + RMSprop"),
-    ("# Step 4:", "bonus model training"),
-    ("pbar.update(", "logging, eval, checkpoint"),
+    ("# Step 4:", "update (loss + backward + optimiser)"),
+    ("# Step 5:", "bonus model training"),
+    ("# Logging", "logging, eval, checkpoint"),
 ]
 DDPG_STAGES = [
     ("for data in collector:", "collection (collector: env + actor)"),
@@ -66,11 +66,32 @@ DDPG_STAGES = [
     ("if vae_loss is not None and updates", "VAE step"),
     ("pbar.update(", "logging, eval, checkpoint"),
 ]
-LOOP_END = "stop.restore()"
+# the end of the training loop (the MiniGrid recipe, then the DDPG one)
+LOOP_ENDS = ("run.finish(", "stop.restore()")
 
 PROFILES = {
-    "a2c-none": (A2C, A2C_STAGES, ["bonus=none", "collector.total_frames=30000"]),
-    "a2c-vae": (A2C, A2C_STAGES, ["bonus=vae", "collector.total_frames=20000"]),
+    # the recipe's defaults (the elliptical VAE bonus) on the envpool backend
+    "a2c-envpool": (
+        MINIGRID,
+        MINIGRID_STAGES,
+        ["algo=a2c", "env.backend=envpool", "collector.total_frames=40000"],
+    ),
+    "ppo-envpool": (
+        MINIGRID,
+        MINIGRID_STAGES,
+        ["algo=ppo", "env.backend=envpool", "collector.total_frames=40960"],
+    ),
+    "a2c-none-envpool": (
+        MINIGRID,
+        MINIGRID_STAGES,
+        [
+            "algo=a2c",
+            "bonus=none",
+            "env.backend=envpool",
+            "collector.total_frames=40000",
+        ],
+    ),
+    "a2c": (MINIGRID, MINIGRID_STAGES, ["algo=a2c", "collector.total_frames=30000"]),
     "ddpg-none": (
         DDPG,
         DDPG_STAGES,
@@ -98,7 +119,7 @@ KINDS = ("env", "torch ops", "tensordict/torchrl", "other")
 
 def kind_of(frame: str) -> str:
     path = frame[frame.rfind("(") + 1 :]
-    if any(s in path for s in ("/gymnasium/", "/minigrid/", "/mujoco/")):
+    if any(s in path for s in ("/gymnasium/", "/minigrid/", "/mujoco/", "/envpool/")):
         return "env"
     if any(s in path for s in ("tensordict/", "torchrl/")):
         return "tensordict/torchrl"
@@ -127,7 +148,11 @@ class StageMap:
                     break
         starts.sort()
         end = next(
-            (n for n, line in enumerate(source, start=1) if LOOP_END in line),
+            (
+                n
+                for n, line in enumerate(source, start=1)
+                if any(end in line for end in LOOP_ENDS)
+            ),
             len(source),
         )
         lines: dict[int, str] = {}

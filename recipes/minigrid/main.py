@@ -33,6 +33,7 @@ uninterrupted run would have). Ctrl-C or SIGTERM saves a checkpoint and exits.
 from __future__ import annotations
 
 import sys
+import time
 from pathlib import Path
 
 # recipes/ holds what the recipes share (common) and the results tools (results).
@@ -47,6 +48,7 @@ from common.config import validate_minigrid
 from common.minigrid import (
     bonus_update_steps,
     documented_results_message,
+    inverse_head,
     load_bonus_model,
     make_actor_critic,
     make_bonus,
@@ -101,7 +103,8 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
     model, int_value = make_actor_critic(
         env.action_spec, use_int_critic, return_log_prob=algo == "ppo"
     )
-    policy = model.get_policy_operator()
+    # The policy in one call per env step (same layers, same draws: utils).
+    policy = utils.SampledCategoricalPolicy(model.get_policy_operator())
     trunk = shared_trunk(model)
 
     # Create losses and optimisers
@@ -149,10 +152,16 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
             "stats": stats,
             # PPO: the minibatch order of the next update's first epoch, drawn already
             "minibatch_sampler": None if buffer is None else buffer.sampler,
+            # intrinsic.vae.inverse_weight > 0: the inverse head on the VAE's latent
+            # (the VAE itself is the bonus transform's)
+            "bonus_inverse_head": inverse_head(bonus_loss),
         },
         on_exit=[collector.shutdown],
     )
     frames = progress.frames
+    # CPU seconds of this process (all its threads) in the loop: frames per CPU
+    # second are what a shared machine's load moves least (time/fps_cpu).
+    cpu_start = time.process_time()
     variant = cfg.intrinsic.vae.variant if cfg.bonus == "vae" else None
     logged_losses = utils.LOGGED_LOSSES[algo]
 
@@ -226,6 +235,9 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
             metrics = rollout_metrics(stats, data, bonus_transform, bonus_td)
             metrics.update({f"train/{k}": v.item() for k, v in logs.items()})
             metrics["time/fps"] = fps
+            metrics["time/fps_cpu"] = (frames - run.start_frames) / max(
+                time.process_time() - cpu_start, 1e-9
+            )
             run.log(metrics, step=frames)
             run.progress_bar.set_postfix(
                 fps=f"{fps:.0f}", ret=f"{stats.mean_return:.3f}"

@@ -6,10 +6,23 @@ from __future__ import annotations
 
 import torch
 from tensordict import TensorDictBase
+from tensordict.nn import InteractionType, TensorDictModuleBase
+from tensordict.nn.probabilistic import interaction_type
+from torch.distributions import Categorical
 from torchrl.data import LazyTensorStorage, ReplayBuffer, SamplerWithoutReplacement
 from torchrl.objectives import A2CLoss, ClipPPOLoss
 
 from common.minigrid import make_advantage
+
+__all__ = [
+    "LOGGED_LOSSES",
+    "SampledCategoricalPolicy",
+    "make_loss",
+    "make_minibatch_buffer",
+    "make_optimizer",
+    "minibatches",
+    "standardize_advantage",
+]
 
 # What the losses return that is logged (means over an update's minibatches).
 LOGGED_LOSSES = {
@@ -104,3 +117,86 @@ def standardize_advantage(data: TensorDictBase, key="advantage") -> TensorDictBa
     scale = advantage.std().clamp_min(torch.finfo(torch.float).resolution)
     data[key] = (advantage - advantage.mean()) / scale
     return data
+
+
+class SampledCategoricalPolicy(TensorDictModuleBase):
+    """The actor-critic's policy in one call, for collection and evaluation.
+
+    The policy operator of :func:`common.minigrid.make_actor_critic` (trunk, policy
+    head, ``ProbabilisticActor`` over a ``Categorical``) runs as three TensorDict
+    modules and a distribution module per env step: at 16 envs a step, their
+    reading, checking and writing of entries cost about as much as the arithmetic.
+    This module runs the same layers on the tensors and samples from the same
+    ``Categorical`` (the same generator draws: ``torch.multinomial`` on the same
+    probabilities), and writes the same entries (``"hidden"``, ``"logits"``,
+    ``"action"`` and, with ``return_log_prob``, ``"action_log_prob"``): a run logs
+    the same numbers. Under an exploration type other than ``RANDOM`` (a greedy
+    evaluation), and for a policy whose actor is not that one, it hands the
+    call to ``policy`` itself.
+
+    Its ``state_dict`` is ``policy``'s (a collector's checkpoint holds the same keys).
+
+    Args:
+        policy: ``model.get_policy_operator()`` of ``make_actor_critic``.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl.data import Categorical as CategoricalSpec
+        >>> from torchrl.envs.utils import ExplorationType, set_exploration_type
+        >>> from common.minigrid import make_actor_critic
+        >>> model, _ = make_actor_critic(CategoricalSpec(7), intrinsic_critic=False)
+        >>> policy = model.get_policy_operator()
+        >>> fast = SampledCategoricalPolicy(policy)
+        >>> obs = TensorDict(image=torch.randint(0, 9, (4, 7, 7, 3)), batch_size=[4])
+        >>> with set_exploration_type(ExplorationType.RANDOM):
+        ...     _ = torch.manual_seed(0)
+        ...     a = fast(obs.clone())["action"]
+        ...     _ = torch.manual_seed(0)
+        ...     b = policy(obs.clone())["action"]
+        >>> torch.equal(a, b)
+        True
+    """
+
+    def __init__(self, policy):
+        super().__init__()
+        trunk, head, sampler = policy.module
+        self.policy = policy
+        self.in_keys = list(policy.in_keys)
+        self.out_keys = list(policy.out_keys)
+        # the plain layers and the keys between them
+        self._trunk, self._head = trunk.module, head.module
+        (self._image_key,), (self._hidden_key,) = trunk.in_keys, trunk.out_keys
+        (self._logits_key,) = head.out_keys
+        self._action_key = sampler.dist_sample_keys[0]
+        self._log_prob_key = sampler.log_prob_key if sampler.return_log_prob else None
+        self._fast = (
+            head.in_keys == trunk.out_keys
+            and list(sampler.in_keys) == [self._logits_key]
+            and sampler.distribution_class is Categorical
+            and not sampler.distribution_kwargs
+            and sampler.num_samples is None
+            and len(sampler.dist_sample_keys) == 1
+        )
+
+    def state_dict(self, *args, **kwargs):
+        return self.policy.state_dict(*args, **kwargs)
+
+    def load_state_dict(self, state_dict, *args, **kwargs):
+        return self.policy.load_state_dict(state_dict, *args, **kwargs)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        if not self._fast or interaction_type() is not InteractionType.RANDOM:
+            return self.policy(tensordict)
+        hidden = self._trunk(tensordict.get(self._image_key))
+        logits = self._head(hidden)
+        # What ProbabilisticTensorDictModule does under RANDOM: Categorical(logits)
+        # (its argument checks change no value), sample(), log_prob(action).
+        dist = Categorical(logits=logits, validate_args=False)
+        action = dist.sample()
+        tensordict.set(self._hidden_key, hidden)
+        tensordict.set(self._logits_key, logits)
+        tensordict.set(self._action_key, action)
+        if self._log_prob_key is not None:
+            tensordict.set(self._log_prob_key, dist.log_prob(action))
+        return tensordict
