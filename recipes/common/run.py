@@ -25,18 +25,21 @@ fraction of a percent of a run between two checkpoints.
 from __future__ import annotations
 
 import copyreg
-import csv
+import errno
 import importlib
+import json
 import logging
 import multiprocessing
 import os
 import random
+import shutil
 import signal
 import socket
 import sys
 import time
 import types
 import uuid
+import zipfile
 from collections import deque
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -55,6 +58,10 @@ from torchrl.checkpoint import (
 __all__ = [
     "BONUS_SECTIONS",
     "RESUMABLE_CHANGES",
+    "DamagedCheckpoint",
+    "DamagedLog",
+    "RunWriteError",
+    "STATUS_NAME",
     "RESUME_MODES",
     "CHECKPOINT_NAME",
     "KEPT_CHECKPOINTS",
@@ -82,6 +89,8 @@ __all__ = [
     "checkpoint_info",
     "find_checkpoint",
     "load_checkpoint",
+    "read_run_status",
+    "write_run_status",
     "prepare_run",
     "register_sweep_pickling",
     "plot_learning_curves",
@@ -144,7 +153,12 @@ def _is_legacy(path: Path) -> bool:
 
 def _load_legacy(path: Path) -> dict[str, Any]:
     # Pickled RNG states (tuples, NumPy arrays): not weights-only.
-    state = torch.load(path, weights_only=False)
+    try:
+        state = torch.load(path, weights_only=False)
+    except OSError:
+        raise
+    except Exception as err:  # EOFError, UnpicklingError, RuntimeError, ...
+        raise DamagedCheckpoint(path, err) from err
     rng = state.get("rng")
     if isinstance(rng, Mapping) and "torch" in rng:  # GlobalRNGState's names
         state["rng"] = {
@@ -155,9 +169,412 @@ def _load_legacy(path: Path) -> dict[str, Any]:
     return state
 
 
+class DamagedCheckpoint(ValueError):
+    """A checkpoint file that cannot be read: empty, cut short, or overwritten.
+
+    The message names the file, what is wrong with it, and what to do: use the
+    newest earlier checkpoint that ``checkpoint.keep`` kept under
+    ``<run dir>/checkpoints/`` (named, with its frames), or, on a resume
+    (:meth:`for_resume`), start afresh in a new run directory.
+
+    Attributes:
+        path (Path): the damaged file.
+        earlier (Path | None): the newest readable checkpoint kept beside it.
+        earlier_frames (int | None): the frames ``earlier`` holds.
+
+    Examples:
+        >>> import tempfile, os
+        >>> path = os.path.join(tempfile.mkdtemp(), CHECKPOINT_NAME)
+        >>> _ = open(path, "wb").close()
+        >>> checkpoint_info(path)  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        common.run.DamagedCheckpoint: .../checkpoint.torchrl is damaged: it is empty (0 bytes)...
+    """
+
+    def __init__(self, path: str | os.PathLike, error: BaseException):
+        self.path = Path(path)
+        self.error = error
+        self.earlier, self.earlier_frames = _earlier_checkpoint(self.path)
+        super().__init__(self._describe() + " " + self._use_earlier())
+
+    def _describe(self) -> str:
+        try:
+            size = self.path.stat().st_size
+            with open(self.path, "rb") as f:
+                head = f.read(4)
+        except OSError:
+            size, head = None, b""
+        if size == 0:
+            what = "it is empty (0 bytes)"
+        elif head == b"PK\x03\x04":
+            what = f"it is cut short or overwritten in part ({size} bytes)"
+        else:
+            what = (
+                "its bytes are neither a TorchRL checkpoint archive nor a "
+                f"torch.save file ({size} bytes)"
+            )
+        return (
+            f"{self.path} is damaged: {what}; reading it failed with "
+            f"{type(self.error).__name__}: {self.error}. A full disk, a crash or "
+            "an interrupted copy leaves such a file."
+        )
+
+    def _use_earlier(self) -> str:
+        if self.earlier is None:
+            return (
+                "No earlier checkpoint is kept beside it (checkpoint.keep=true keeps "
+                f"each one under <run dir>/{KEPT_CHECKPOINTS}/)."
+            )
+        return (
+            f"An earlier checkpoint of the run is kept: {self.earlier} "
+            f"({self.earlier_frames} frames); pass that file instead."
+        )
+
+    def for_resume(self, run_dir: str | os.PathLike) -> DamagedCheckpoint:
+        """The same error, saying how to go on with the run in ``run_dir``."""
+        run_dir = Path(run_dir)
+        advice = []
+        if self.earlier is not None:
+            advice.append(
+                f"To resume from the kept {self.earlier} ({self.earlier_frames} "
+                f"frames), put it in place of the damaged file: mv {self.path} "
+                f"{self.path}.damaged && cp {self.earlier} {run_dir / CHECKPOINT_NAME}"
+                "; then run the same command again."
+            )
+        else:
+            advice.append(self._use_earlier())
+        advice.append(
+            f"To start afresh, move the run directory away (mv {run_dir} "
+            f"{run_dir}.damaged) or pass another hydra.run.dir, with resume=false."
+        )
+        error = DamagedCheckpoint.__new__(DamagedCheckpoint)
+        error.path, error.error = self.path, self.error
+        error.earlier, error.earlier_frames = self.earlier, self.earlier_frames
+        ValueError.__init__(
+            error, f"Cannot resume {run_dir}: {self._describe()} " + " ".join(advice)
+        )
+        return error
+
+
+def _earlier_checkpoint(path: Path) -> tuple[Path | None, int | None]:
+    # The kept checkpoints of the run: <run dir>/checkpoints/ beside its latest
+    # one, or the folder a kept one is in; the newest readable one, older than a
+    # damaged kept one.
+    kept = path.parent if path.parent.name == KEPT_CHECKPOINTS else None
+    kept = kept or path.parent / KEPT_CHECKPOINTS
+    if not kept.is_dir():
+        return None, None
+    for candidate in sorted(kept.glob("checkpoint-*.torchrl"), reverse=True):
+        if candidate == path or (kept == path.parent and candidate.name > path.name):
+            continue
+        try:
+            frames = Checkpoint.manifest(candidate)["metadata"].get("frames", 0)
+            _verify_archive(candidate)
+        except Exception:  # damaged as well: an older one
+            continue
+        return candidate, int(frames)
+    return None, None
+
+
+def _verify_archive(path: Path) -> None:
+    # Every member's CRC: a checkpoint overwritten in part reads its manifest
+    # but fails on the payload, after part of the run was restored.
+    if path.is_dir():
+        return
+    try:
+        with zipfile.ZipFile(path) as archive:
+            bad = archive.testzip()
+    except (zipfile.BadZipFile, EOFError, ValueError) as err:
+        raise DamagedCheckpoint(path, err) from err
+    if bad is not None:
+        raise DamagedCheckpoint(path, zipfile.BadZipFile(f"bad CRC-32 for {bad}"))
+
+
+_WRITE_ERRORS = {
+    errno.ENOSPC: "no space left on device",
+    errno.EDQUOT: "disk quota exceeded",
+    errno.EACCES: "permission denied",
+    errno.EPERM: "operation not permitted",
+    errno.EROFS: "read-only file system",
+    errno.EFBIG: "file too large",
+}
+
+#: Below this much free space, a write that torch reports without an errno
+#: (``unexpected pos``, ``file write failed``) is put down to a full disk.
+_NEARLY_FULL = 64 * 2**20
+
+
+class RunWriteError(OSError):
+    """A file of a run could not be written: the message names the file, the
+    cause (``no space left on device``, ``permission denied``) and what is left as
+    it was. ``errno`` is the cause's (``None`` when unknown).
+
+    Examples:
+        >>> err = _write_failure(OSError(errno.ENOSPC, "No space"), Path("/r/x"))
+        >>> str(err).startswith("could not write /r/x: no space left on device")
+        True
+    """
+
+    def __init__(self, code: int | None, message: str, filename: str):
+        super().__init__(code, message, filename)
+        self.message = message
+
+    def __str__(self) -> str:
+        return self.message
+
+
+def _errno_of(error: BaseException) -> int | None:
+    seen = set()
+    while error is not None and id(error) not in seen:
+        seen.add(id(error))
+        if isinstance(error, OSError) and error.errno is not None:
+            return error.errno
+        error = error.__cause__ or error.__context__
+    return None
+
+
+def _is_write_error(error: BaseException) -> bool:
+    # torch.save reports a failed write as a RuntimeError of its zip writer
+    # ("[enforce fail at inline_container.cc:672] . unexpected pos").
+    if _errno_of(error) is not None:
+        return True
+    text = str(error)
+    return isinstance(error, RuntimeError) and (
+        "inline_container" in text or "PytorchStreamWriter" in text
+    )
+
+
+def _free_bytes(path: Path) -> int | None:
+    for folder in (path.parent, *path.parents):
+        if folder.is_dir():
+            try:
+                return shutil.disk_usage(folder).free
+            except OSError:
+                return None
+    return None
+
+
+def _write_failure(
+    error: BaseException, path: Path, *, needed: int = 0, kept: str = ""
+) -> RunWriteError:
+    """The error to raise for a failed write of ``path``: its cause in words."""
+    code = _errno_of(error)
+    free = _free_bytes(path)
+    if code is None and free is not None and free < max(needed, _NEARLY_FULL):
+        code = errno.ENOSPC  # torch's writer gives no errno
+    if code is None:
+        reason = f"the write failed ({type(error).__name__}: {error})"
+    else:
+        reason = _WRITE_ERRORS.get(code) or os.strerror(code).lower()
+    message = f"could not write {path}: {reason}"
+    if code in (errno.ENOSPC, errno.EDQUOT) and free is not None:
+        message += f" ({free / 2**20:.1f} MiB free there)"
+    message += ". No partial file is left behind."
+    if kept:
+        message += " " + kept
+    if code in (errno.ENOSPC, errno.EDQUOT):
+        message += " Free some space (or move the run directory), then resume."
+    elif code in (errno.EACCES, errno.EPERM, errno.EROFS):
+        message += " Make the run directory writable, then resume."
+    return RunWriteError(code, message, str(path))
+
+
+def _remove(path: Path) -> None:
+    try:
+        if path.is_dir():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
+    except OSError:
+        pass
+
+
+def _temporary(path: Path) -> Path:
+    return path.with_name(f".{path.name}.{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp")
+
+
+def _write_atomically(path: Path, data: str | bytes, *, kept: str = "") -> None:
+    """Writes ``data`` to a temporary file beside ``path``, then renames it over
+    ``path``: a failed write leaves ``path`` as it was and no temporary file, and
+    raises :class:`RunWriteError`."""
+    tmp = _temporary(path)
+    try:
+        with open(tmp, "wb" if isinstance(data, bytes) else "w") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError as err:
+        raise _write_failure(err, path, kept=kept) from err
+    finally:
+        _remove(tmp)
+
+
+def _remove_leftover_temporaries(run_dir: Path) -> None:
+    # What a run killed while writing left: its checkpoint's, status's and
+    # truncated logs' temporary files (the run owns its directory: RunLock).
+    patterns = (
+        ".checkpoint.*",
+        "..checkpoint.*",
+        f".{STATUS_NAME}.*",
+        ".config_resolved.yaml.*",
+    )
+    for pattern in patterns:
+        for path in run_dir.glob(pattern):
+            _remove(path)
+    for path in (run_dir / KEPT_CHECKPOINTS).glob(".checkpoint-*"):
+        _remove(path)
+    for path in (run_dir / "logs").glob("**/scalars/**/.*.csv.*"):
+        _remove(path)
+
+
+class DamagedLog(ValueError):
+    """A scalar log with a line that is not a ``step,value`` row; the message
+    names the file and the line.
+
+    Examples:
+        >>> import tempfile, os
+        >>> path = os.path.join(tempfile.mkdtemp(), "x.csv")
+        >>> _ = open(path, "w").write("64,0.5\\nline\\n128,0.25\\n")
+        >>> read_scalar_csv(path)  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        common.run.DamagedLog: .../x.csv, line 2: 'line' is not a 'step,value' row...
+    """
+
+    def __init__(self, path: str | os.PathLike, line_number: int, line: bytes):
+        self.path = Path(path)
+        self.line_number = line_number
+        text = line.decode("utf-8", "replace").rstrip("\r\n")
+        shown = repr(text if len(text) <= 60 else text[:60] + "...")
+        super().__init__(
+            f"{self.path}, line {line_number}: {shown} is not a 'step,value' row "
+            "of TorchRL's CSVLogger: the file is damaged (a full disk, a crash or "
+            "an edit). Delete or correct that line, then run again."
+        )
+
+
+def _scalar_row(
+    path: str | os.PathLike, number: int, line: bytes, *, last: bool
+) -> tuple[int, float] | None:
+    # (step, value); None for a blank line, or for a last line cut short by a
+    # write that was still going on or was interrupted (no newline yet).
+    if not line.strip():
+        return None
+    fields = line.strip().split(b",")
+    try:
+        if len(fields) != 2:
+            raise ValueError(fields)
+        return int(float(fields[0])), float(fields[1])
+    except (ValueError, OverflowError):
+        if last and not line.endswith(b"\n"):
+            return None
+        raise DamagedLog(path, number, line) from None
+
+
+STATUS_NAME = "status.json"
+"""A run's own record of how far it got, ``<run dir>/status.json``
+(:func:`write_run_status`), rewritten atomically with each checkpoint."""
+
+
+def _scalar_logs(run_dir: Path) -> list[str]:
+    logs = (run_dir / "logs").glob("*/scalars/**/*.csv")
+    return sorted(p.relative_to(run_dir).as_posix() for p in logs)
+
+
+def write_run_status(
+    run_dir: str | os.PathLike, config: Mapping[str, Any], frames: int
+) -> Path:
+    """Writes ``<run_dir>/status.json`` atomically: how far the run got.
+
+    Keys: ``task`` (``env.name``), ``seed``, ``setting`` (the label the
+    aggregation gives the run, ``results.aggregate.setting_label``), ``frames``
+    (done, as in the checkpoint), ``total_frames`` (the budget,
+    ``collector.total_frames``), ``finished`` (``frames >= total_frames``),
+    ``logs`` (the scalar logs written so far, relative to the run directory:
+    a resume refuses to go on without them) and ``updated`` (UTC time).
+
+    Examples:
+        >>> import tempfile
+        >>> run_dir = tempfile.mkdtemp()
+        >>> config = {"env": {"name": "MiniGrid-Empty-5x5-v0"}, "seed": 0,
+        ...           "bonus": "vae", "collector": {"total_frames": 1024}}
+        >>> _ = write_run_status(run_dir, config, frames=1024)
+        >>> status = read_run_status(run_dir)
+        >>> status["finished"], status["frames"], status["setting"]
+        (True, 1024, 'vae')
+    """
+    from results.aggregate import setting_label
+
+    run_dir = Path(run_dir)
+    overrides = None
+    overrides_file = run_dir / ".hydra" / "overrides.yaml"
+    if overrides_file.is_file():
+        from omegaconf import OmegaConf
+
+        overrides = [str(o) for o in OmegaConf.load(overrides_file)]
+    total = (config.get("collector") or {}).get("total_frames")
+    status = {
+        "task": (config.get("env") or {}).get("name"),
+        "seed": config.get("seed"),
+        "setting": setting_label(config, overrides),
+        "frames": int(frames),
+        "total_frames": None if total is None else int(total),
+        "finished": total is not None and int(frames) >= int(total),
+        "logs": _scalar_logs(run_dir),
+        "updated": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+    }
+    path = run_dir / STATUS_NAME
+    _write_atomically(
+        path,
+        json.dumps(status, indent=1) + "\n",
+        kept="The previous status.json is left as it was.",
+    )
+    return path
+
+
+def read_run_status(run_dir: str | os.PathLike) -> dict[str, Any] | None:
+    """The run's ``status.json`` (:func:`write_run_status`), or ``None`` for a run
+    directory without one (written before it existed).
+
+    Raises:
+        ValueError: the file is not the JSON object it should be (named).
+    """
+    path = Path(run_dir) / STATUS_NAME
+    try:
+        status = json.loads(path.read_bytes())
+    except FileNotFoundError:
+        return None
+    except ValueError as err:
+        raise ValueError(f"{path} is damaged ({err}); delete it") from None
+    if not isinstance(status, dict) or not {"frames", "finished"} <= set(status):
+        raise ValueError(f"{path} is damaged (no frames or finished); delete it")
+    return status
+
+
+def _missing_scalar_logs(run_dir: Path, info: Mapping[str, Any]) -> list[str]:
+    # The CSV logs a run resumed at info["frames"] should find: those its
+    # status.json lists, or for a run without one, any.
+    logger = info["config"].get("logger") or {}
+    if info["frames"] <= 0 or logger.get("backend") != "csv":
+        return []
+    present = set(_scalar_logs(run_dir))
+    try:
+        status = read_run_status(run_dir)
+    except ValueError:
+        status = None
+    if status is not None and isinstance(status.get("logs"), list):
+        return sorted(set(status["logs"]) - present)
+    return [] if present else ["logs/*/scalars/*.csv (none left)"]
+
+
 def checkpoint_info(path: str | os.PathLike) -> dict[str, Any]:
     """What a checkpoint says of its run without loading its state: ``frames``
     and the resolved ``config`` (the manifest's metadata).
+
+    Raises:
+        DamagedCheckpoint: the file cannot be read (empty, cut short, garbage).
 
     Examples:
         >>> import tempfile, os
@@ -192,7 +609,9 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     """Every state a checkpoint holds, by component name, with its ``frames`` and
     ``config``: for tools that read a run (the heatmap, transfer, tests), not for
     resuming it (:meth:`TrainingRun.restore`). Reads both formats
-    (:data:`CHECKPOINT_NAME`, :data:`LEGACY_CHECKPOINT_NAME`).
+    (:data:`CHECKPOINT_NAME`, :data:`LEGACY_CHECKPOINT_NAME`); a file that
+    cannot be read raises :class:`DamagedCheckpoint`, which names it and the
+    earlier checkpoint kept beside it.
 
     Examples:
         >>> import tempfile, os
@@ -206,6 +625,7 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     path = Path(path)
     if _is_legacy(path):
         return _load_legacy(path)
+    _verify_archive(path)
     manifest = Checkpoint.manifest(path)
     holders = {name: _SavedState() for name in manifest["components"]}
     _reader(holders).load(path, tensor_load_kwargs=_UNPICKLE)
@@ -250,6 +670,8 @@ class RunCheckpoint:
         keep_dir: where :meth:`save_every` also keeps each periodic checkpoint
             (:class:`torchrl.checkpoint.CheckpointRotation`, all kept); ``None``
             (default) keeps only the latest.
+        status (bool): also rewrite ``status.json`` beside the checkpoint with
+            each save (:func:`write_run_status`; a run's, not a tool's).
 
     Examples:
         >>> import tempfile, os
@@ -275,8 +697,10 @@ class RunCheckpoint:
         components: Mapping[str, Any],
         config: Mapping[str, Any],
         keep_dir: str | os.PathLike | None = None,
+        status: bool = False,
     ):
         self.path = Path(path)
+        self.status = status
         self.components = {k: v for k, v in components.items() if v is not None}
         if "rng" in self.components:
             raise KeyError("'rng' is the checkpoint's own: the global generators.")
@@ -297,19 +721,33 @@ class RunCheckpoint:
 
     def save(self) -> None:
         """Writes the checkpoint atomically: to a temporary file of its own, then
-        renamed over the previous one, which a failed write leaves intact."""
-        tmp = self.path.with_name(
-            f".{self.path.name}.{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp"
-        )
+        renamed over the previous one, which a failed write leaves intact, with
+        no temporary file; it raises :class:`RunWriteError`, which names the file
+        and the cause (``no space left on device``, ``permission denied``)."""
+        tmp = _temporary(self.path)
         try:
             self._checkpoint.save(tmp, metadata=self._metadata())
             os.replace(tmp, self.path)
+        except Exception as err:
+            if not _is_write_error(err):
+                raise
+            size = self.path.stat().st_size if self.path.exists() else 0
+            raise _write_failure(
+                err, self.path, needed=size, kept=self._left_as_it_was()
+            ) from err
         finally:
-            if tmp.exists():
-                tmp.unlink()
+            _remove(tmp)
         legacy = self.path.with_name(LEGACY_CHECKPOINT_NAME)
         if self.path.name == CHECKPOINT_NAME and legacy.exists():
             legacy.unlink()  # superseded by the checkpoint just written
+        if self.status:
+            write_run_status(self.path.parent, self.config, self._metadata()["frames"])
+
+    def _left_as_it_was(self) -> str:
+        for previous in (self.path, self.path.with_name(LEGACY_CHECKPOINT_NAME)):
+            if previous.exists():
+                return f"The previous checkpoint, {previous}, is left as it was."
+        return "The run has no earlier checkpoint."
 
     def save_every(self, interval_frames: int) -> None:
         """Saves when the run's :class:`RunCounters` has passed ``next_ckpt``
@@ -319,9 +757,21 @@ class RunCheckpoint:
             progress.next_ckpt += interval_frames
             self.save()
             if self._kept is not None:
-                self._kept.save(
-                    self._checkpoint, step=progress.frames, metadata=self._metadata()
-                )
+                try:
+                    self._kept.save(
+                        self._checkpoint,
+                        step=progress.frames,
+                        metadata=self._metadata(),
+                    )
+                except Exception as err:
+                    if not _is_write_error(err):
+                        raise
+                    kept = Path(self._kept.directory)
+                    raise _write_failure(
+                        err,
+                        kept / f"checkpoint-{progress.frames:012d}.torchrl",
+                        kept=f"The run's checkpoint, {self.path}, was written.",
+                    ) from err
 
     def load(self, path: str | os.PathLike) -> None:
         """Restores every component from the checkpoint at ``path`` (either format),
@@ -332,6 +782,7 @@ class RunCheckpoint:
             saved = set(state)
         else:
             state = None
+            _verify_archive(path)
             saved = set(Checkpoint.manifest(path)["components"])
         missing = [name for name in self.components if name not in saved]
         if missing:
@@ -356,6 +807,7 @@ RESUMABLE_CHANGES: tuple[str, ...] = (
     "eval",
     "logger",
     "checkpoint",
+    "resume_without_logs",
 )
 """Config entries (and sections) that may change when a run resumes.
 
@@ -456,22 +908,28 @@ def truncate_scalar_logs(log_dir: str | os.PathLike, max_step: int) -> int:
     """Drops the rows of TorchRL ``CSVLogger`` scalar files logged after ``max_step``.
 
     A run killed after its checkpoint has logged steps that its resumed run logs
-    again; cutting them at the checkpoint keeps each step logged once.
+    again; cutting them at the checkpoint keeps each step logged once. A last
+    line that a write left unfinished (no newline) goes as well; any other line
+    that is not ``step,value`` raises :class:`DamagedLog` naming it. Each file is
+    rewritten atomically (a failed write raises :class:`RunWriteError` and leaves
+    it as it was, with no temporary file).
 
     Returns:
         The number of rows removed.
     """
     removed = 0
     for path in sorted(Path(log_dir).glob("**/scalars/**/*.csv")):
-        rows = path.read_text().splitlines(keepends=True)
-        kept = [
-            r for r in rows if r.strip() and int(float(r.split(",")[0])) <= max_step
-        ]
-        if len(kept) != len(rows):
+        rows = path.read_bytes().splitlines(keepends=True)
+        kept = []
+        for number, row in enumerate(rows, 1):
+            if max_step < 0:
+                break  # a run that starts afresh: every row goes
+            parsed = _scalar_row(path, number, row, last=number == len(rows))
+            if parsed is not None and parsed[0] <= max_step:
+                kept.append(row if row.endswith(b"\n") else row + b"\n")
+        if kept != rows:
             removed += len(rows) - len(kept)
-            tmp = path.with_name(f".{path.name}.{os.getpid()}-{uuid.uuid4().hex[:8]}")
-            tmp.write_text("".join(kept))
-            os.replace(tmp, path)
+            _write_atomically(path, b"".join(kept), kept=f"{path} is left as it was.")
     return removed
 
 
@@ -490,6 +948,14 @@ def prepare_run(cfg, run_dir: str | os.PathLike) -> tuple[Path, dict[str, Any] |
     nothing computed is overwritten. Writes ``config_resolved.yaml`` once the
     checks pass.
 
+    A resume also refuses a damaged checkpoint (:class:`DamagedCheckpoint`,
+    naming the earlier one ``checkpoint.keep`` kept), a damaged scalar log
+    (:class:`DamagedLog`, naming the line), and a run whose scalar logs are gone
+    (those its ``status.json`` lists, or all of them): it would go on with a
+    learning curve missing everything before the checkpoint. Set
+    ``resume_without_logs=true`` to go on all the same. The temporary files of a
+    write that a kill interrupted are removed.
+
     Returns:
         ``(checkpoint to resume from, its checkpoint_info)``, or
         ``(<run_dir>/checkpoint.torchrl, None)`` for a new run.
@@ -502,6 +968,8 @@ def prepare_run(cfg, run_dir: str | os.PathLike) -> tuple[Path, dict[str, Any] |
     seed_everything(cfg.seed)
     config = OmegaConf.to_container(cfg, resolve=True)
     info = None
+    if run_dir.is_dir():
+        _remove_leftover_temporaries(run_dir)
     try:
         ckpt_path = find_checkpoint(run_dir) if run_dir.is_dir() else None
     except FileNotFoundError:
@@ -512,7 +980,12 @@ def prepare_run(cfg, run_dir: str | os.PathLike) -> tuple[Path, dict[str, Any] |
                 f"{run_dir} already holds a checkpoint: pass resume=auto to continue "
                 "it, or another hydra.run.dir to start a new run."
             )
-        info = checkpoint_info(ckpt_path)
+        try:
+            info = checkpoint_info(ckpt_path)
+            if not _is_legacy(ckpt_path):
+                _verify_archive(ckpt_path)
+        except DamagedCheckpoint as err:
+            raise err.for_resume(run_dir) from err.error
         diffs = config_differences(
             info["config"],
             config,
@@ -526,6 +999,18 @@ def prepare_run(cfg, run_dir: str | os.PathLike) -> tuple[Path, dict[str, Any] |
                 + ", ".join(RESUMABLE_CHANGES)
                 + ". Start a new run directory for a new experiment."
             )
+        missing = _missing_scalar_logs(run_dir, info)
+        if missing and not cfg.get("resume_without_logs", False):
+            raise FileNotFoundError(
+                f"Cannot resume {run_dir}: its checkpoint is at {info['frames']} "
+                "frames but scalar logs it wrote before are missing: "
+                + ", ".join(missing)
+                + ". Resumed, its learning curve and aggregated results would "
+                "lack everything before that frame. Put the logs back; or start "
+                f"afresh (move {run_dir} away, or another hydra.run.dir, with "
+                "resume=false); or pass resume_without_logs=true to go on "
+                "without the early curve."
+            )
         truncate_scalar_logs(run_dir / "logs", info["frames"])
     elif mode == "true":
         raise FileNotFoundError(
@@ -538,7 +1023,7 @@ def prepare_run(cfg, run_dir: str | os.PathLike) -> tuple[Path, dict[str, Any] |
         truncate_scalar_logs(run_dir / "logs", -1)
         ckpt_path = run_dir / CHECKPOINT_NAME
     run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "config_resolved.yaml").write_text(OmegaConf.to_yaml(config))
+    _write_atomically(run_dir / "config_resolved.yaml", OmegaConf.to_yaml(config))
     return ckpt_path, info
 
 
@@ -895,6 +1380,7 @@ class TrainingRun:
             keep_dir=self.run_dir / KEPT_CHECKPOINTS
             if cfg.checkpoint.get("keep", False)
             else None,
+            status=True,
         )
         if self._source is not None:
             if not _holds_component(self._source, "logger"):
@@ -1299,12 +1785,17 @@ def read_scalar_csv(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """Reads one scalar file of TorchRL's ``CSVLogger`` (rows ``step,value``).
 
     When a resumed run logged a step again, the last value of that step is kept.
+    A last line still being written (no newline yet) is skipped.
+
+    Raises:
+        DamagedLog: a line is not ``step,value``; it names the file and line.
     """
     values: dict[int, float] = {}
-    with open(path) as f:
-        for row in csv.reader(f):
-            if len(row) >= 2:
-                values[int(float(row[0]))] = float(row[1])
+    rows = Path(path).read_bytes().splitlines(keepends=True)
+    for number, row in enumerate(rows, 1):
+        parsed = _scalar_row(path, number, row, last=number == len(rows))
+        if parsed is not None:
+            values[parsed[0]] = parsed[1]
     steps = np.array(sorted(values), dtype=np.int64)
     return steps, np.array([values[s] for s in steps], dtype=np.float64)
 
