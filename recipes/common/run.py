@@ -155,9 +155,9 @@ def _load_legacy(path: Path) -> dict[str, Any]:
     # Pickled RNG states (tuples, NumPy arrays): not weights-only.
     try:
         state = torch.load(path, weights_only=False)
-    except OSError:
+    except (FileNotFoundError, PermissionError):
         raise
-    except Exception as err:  # EOFError, UnpicklingError, RuntimeError, ...
+    except Exception as err:  # EOFError, UnpicklingError, RuntimeError, EINVAL
         raise DamagedCheckpoint(path, err) from err
     rng = state.get("rng")
     if isinstance(rng, Mapping) and "torch" in rng:  # GlobalRNGState's names
@@ -1325,7 +1325,11 @@ class TrainingRun:
             self._skipped = f"Skipped: {err}"
             return
         # the checkpoint to resume from (None: a new run) and what it says
-        source, self.resumed_from = prepare_run(cfg, self.run_dir)
+        try:
+            source, self.resumed_from = prepare_run(cfg, self.run_dir)
+        except BaseException:
+            self._lock.release()  # refused: the directory is free again
+            raise
         self._source = source if self.resumed_from else None
         self.logger = None
         self.progress_bar = None
@@ -1435,16 +1439,21 @@ class TrainingRun:
         self.progress_bar.close()
         for close in self._on_exit:
             close()
+        requeue = _submitit_requeue(self._stop)
+        then = (
+            "submitit requeues the job, which resumes from it."
+            if requeue is not None
+            else f"Resume with: {resume_command(self.run_dir)}"
+        )
         print(
-            f"{self._stop.name}: stopped at {frames} frames, checkpoint saved. "
-            f"Resume with: {resume_command(self.run_dir)}",
+            f"{self._stop.name}: stopped at {frames} frames, checkpoint saved. {then}",
             flush=True,
         )
-        requeue = _submitit_requeue(self._stop)
         if requeue is not None:
             # submitit's handler saves its job (the launcher's task with the same
             # arguments), requeues it and exits; the job comes back with
             # resume=auto and continues from the checkpoint just saved.
+            _register_recipes_pickling()
             self._stop.restore()
             requeue(self._stop.received, None)
         _exit_process(128 + self._stop.received)
@@ -1485,6 +1494,21 @@ class TrainingRun:
         )
         self._lock.release()
         return curve
+
+
+def _register_recipes_pickling() -> None:
+    # A job requeued by submitit is pickled again in this process, where the
+    # recipes' modules may have been imported by name since (sys.path holds the
+    # recipes' folder, TrainingRun): pickled by reference, the job would not load
+    # in the next process, which cannot import them. They go by value, as the
+    # sweep's first pickling sent them (register_sweep_pickling).
+    recipes = _RECIPES_DIR + os.sep
+    modules = [
+        module
+        for module in list(sys.modules.values())
+        if (getattr(module, "__file__", None) or "").startswith(recipes)
+    ]
+    register_sweep_pickling(*modules)
 
 
 def _submitit_requeue(stop: StopSignal):

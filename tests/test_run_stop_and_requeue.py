@@ -1,0 +1,242 @@
+"""Runs that survive a cluster: the signals that save and stop a run, submitit's
+requeue after its time-limit warning, and the logger's run continued on resume."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+from _recipe_run import wait_for_checkpoint
+from omegaconf import OmegaConf
+from tensorboard.backend.event_processing import event_file_loader
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from common.run import (
+    CHECKPOINT_NAME,
+    LOCK_NAME,
+    RunCheckpoint,
+    RunCounters,
+    StopSignal,
+    TrainingRun,
+    checkpoint_info,
+    load_checkpoint,
+    read_scalar_csv,
+)
+
+RECIPES = Path(__file__).resolve().parents[1] / "recipes"
+MAIN = RECIPES / "minigrid" / "main.py"
+# 32 frames per update, each logged; no bonus: the cheapest run of the recipe
+TINY = [
+    "bonus=none",
+    "env.name=MiniGrid-MultiRoom-N2-S4-v0",
+    "env.num_envs=4",
+    "collector.frames_per_env=8",
+    "eval.interval_frames=256",
+    "eval.episodes=2",
+    "eval.num_envs=2",
+    "checkpoint.interval_frames=128",
+    "logger.log_interval=1",
+]
+REWARD_CSV = "logs/a2c/scalars/train/reward.csv"
+
+
+def run_recipe(run_dir: Path, *overrides: str) -> subprocess.CompletedProcess:
+    cmd = [sys.executable, str(MAIN), f"hydra.run.dir={run_dir}", *TINY, *overrides]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, f"{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}"
+    return proc
+
+
+@pytest.mark.parametrize("sig", [signal.SIGUSR2, signal.SIGHUP])
+def test_sigusr2_and_sighup_save_a_checkpoint_and_the_run_resumes(tmp_path, sig):
+    # SIGUSR2: SLURM's warning before the time limit (submitit's --signal);
+    # SIGHUP: the terminal the run was started from closed.
+    run_dir = tmp_path / "run"
+    cmd = [sys.executable, str(MAIN), f"hydra.run.dir={run_dir}", *TINY]
+    proc = subprocess.Popen(
+        [*cmd, "collector.total_frames=1000000"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        wait_for_checkpoint(run_dir / CHECKPOINT_NAME, min_frames=128)
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 128 + sig, err[-3000:]
+    assert "Traceback" not in err
+    assert f"{sig.name}: stopped at" in out and "Resume with:" in out, out[-2000:]
+    frames = load_checkpoint(run_dir / CHECKPOINT_NAME)["frames"]
+    steps, _ = read_scalar_csv(run_dir / REWARD_CSV)
+    assert steps[-1] == frames, "the stop saved a checkpoint at the last logged step"
+    out = run_recipe(run_dir, f"collector.total_frames={frames + 64}").stdout
+    assert f"Done: {frames + 64} frames" in out
+    steps, _ = read_scalar_csv(run_dir / REWARD_CSV)
+    assert steps.tolist() == list(range(32, frames + 65, 32))
+
+
+def test_an_ignored_sighup_stays_ignored():
+    # nohup: the run is meant to outlive its terminal
+    previous = signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    try:
+        stop = StopSignal()
+        os.kill(os.getpid(), signal.SIGHUP)
+        assert signal.getsignal(signal.SIGHUP) == signal.SIG_IGN and not stop
+        stop.restore()
+    finally:
+        signal.signal(signal.SIGHUP, previous)
+
+
+def test_a_submitit_job_saves_on_sigusr2_is_requeued_and_resumes(tmp_path):
+    # submitit_local runs a job the way SLURM does (submitit's SIGUSR2 handler,
+    # the requeue); the SIGUSR2 is sent here rather than timeout_min - 30 s late.
+    sweep_dir = tmp_path / "sweep"
+    job_dir = sweep_dir / "job"
+    sweep = [
+        sys.executable,
+        str(MAIN),
+        "-m",
+        "hydra/launcher=submitit_local",
+        f"hydra.sweep.dir={sweep_dir}",
+        "hydra.sweep.subdir=job",
+        *TINY,
+        "collector.total_frames=512",
+    ]
+    proc = subprocess.Popen(
+        sweep, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        wait_for_checkpoint(job_dir / CHECKPOINT_NAME, min_frames=128, timeout=300)
+        first_pid = int((job_dir / LOCK_NAME).read_text().split()[0])
+        os.kill(first_pid, signal.SIGUSR2)
+        out, err = proc.communicate(timeout=300)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err[-3000:]
+    logs = sorted((sweep_dir / ".submitit").glob("*/*_log.*"))
+    job_log = "\n".join(p.read_text() for p in logs)
+    # the first attempt saved where it stopped, submitit requeued the job, the
+    # second attempt resumed from that checkpoint and finished the budget
+    stops = [line for line in job_log.splitlines() if "SIGUSR2: stopped at" in line]
+    assert len(set(stops)) == 1, job_log[-3000:]
+    assert stops[0].endswith("submitit requeues the job, which resumes from it.")
+    assert "Requeued job" in job_log and "Done: 512 frames" in job_log
+    assert int((job_dir / LOCK_NAME).read_text().split()[0]) != first_pid
+    assert checkpoint_info(job_dir / CHECKPOINT_NAME)["frames"] == 512
+    steps, _ = read_scalar_csv(job_dir / REWARD_CSV)
+    assert steps.tolist() == list(range(32, 513, 32)), "each step logged once"
+
+
+def event_steps(path: Path, tag: str) -> list[int]:
+    """The steps of ``tag`` in one TensorBoard events file, as written."""
+    return [
+        e.step
+        for e in event_file_loader.EventFileLoader(str(path)).Load()
+        if any(v.tag == tag for v in e.summary.value)
+    ]
+
+
+def test_a_resumed_tensorboard_run_continues_its_events(tmp_path):
+    run_dir = tmp_path / "run"
+    events = run_dir / "logs" / "a2c"
+    cmd = [sys.executable, str(MAIN), f"hydra.run.dir={run_dir}", *TINY]
+    tb = ["logger.backend=tensorboard", "checkpoint.interval_frames=512"]
+    proc = subprocess.Popen(
+        [*cmd, *tb, "collector.total_frames=1000000"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        # killed between two checkpoints, once it has logged past the first
+        wait_for_checkpoint(run_dir / CHECKPOINT_NAME, min_frames=512)
+        deadline = time.time() + 120
+        while max(event_steps(p, "train/reward") for p in events.iterdir())[-1] <= 512:
+            assert time.time() < deadline, "no step logged after the checkpoint"
+            time.sleep(0.05)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert checkpoint_info(run_dir / CHECKPOINT_NAME)["frames"] == 512
+    run_recipe(run_dir, *tb, "collector.total_frames=768")
+    # one run: one experiment directory, which both processes wrote to
+    assert [p.name for p in (run_dir / "logs").iterdir()] == ["a2c"]
+    written = sorted(
+        s for p in events.iterdir() for s in event_steps(p, "train/reward")
+    )
+    assert len(written) > len(set(written)), "the killed run logged past 512"
+    # what TensorBoard shows: every step once, the killed run's extra ones hidden
+    shown = EventAccumulator(str(events)).Reload().Scalars("train/reward")
+    assert [e.step for e in shown] == list(range(32, 769, 32))
+    assert load_checkpoint(run_dir / CHECKPOINT_NAME)["logger"]["backend"] == (
+        "tensorboard"
+    )
+
+
+def _cfg(total_frames: int):
+    return OmegaConf.create(
+        {
+            "seed": 0,
+            "resume": "auto",
+            "torch_threads": 1,
+            "collector": {"total_frames": total_frames},
+            "logger": {"backend": "csv", "project_name": "p"},
+            "checkpoint": {"interval_frames": 128},
+        }
+    )
+
+
+def _train(run_dir: Path, total_frames: int) -> TrainingRun:
+    run = TrainingRun(_cfg(total_frames), "demo", run_dir=run_dir)
+    counters = RunCounters(frames=0, next_ckpt=128)
+    run.restore({"progress": counters}, show_progress=False)
+    while counters.frames < total_frames:
+        counters.frames += 64
+        run.log({"train/x": float(counters.frames)}, step=counters.frames)
+        run.after_update()
+    run.finish(f"{counters.frames} frames.", curves={})
+    return run
+
+
+def test_the_logger_state_is_saved_and_a_resumed_run_continues_it(tmp_path):
+    _train(tmp_path, 256)
+    state = load_checkpoint(tmp_path / CHECKPOINT_NAME)["logger"]
+    assert state["backend"] == "csv"
+    assert [s for s, _ in state["state"]["local"]["scalars"]["train/x"]] == [
+        64,
+        128,
+        192,
+        256,
+    ]
+    run = _train(tmp_path, 384)
+    # the logger continued the first part's run: it knows its scalars
+    logged = run.logger.experiment.scalars["train/x"]
+    assert [s for s, _ in logged] == [64, 128, 192, 256, 320, 384]
+
+
+def test_a_checkpoint_without_logger_state_still_resumes(tmp_path):
+    # written before the checkpoint held the logger's state (and no logs: this
+    # checkpoint was not written by a run)
+    cfg = _cfg(256)
+    cfg.resume_without_logs = True
+    saved = OmegaConf.to_container(cfg, resolve=True)
+    counters = RunCounters(frames=128, next_ckpt=256)
+    net = torch.nn.Linear(2, 1)
+    RunCheckpoint(
+        tmp_path / CHECKPOINT_NAME, {"progress": counters, "net": net}, saved
+    ).save()
+    run = TrainingRun(cfg, "demo", run_dir=tmp_path)
+    restored = RunCounters(frames=0, next_ckpt=128)
+    run.restore({"progress": restored, "net": torch.nn.Linear(2, 1)})
+    assert restored.frames == 128 and run.logger is not None
+    restored.frames = 256
+    run.after_update()
+    assert load_checkpoint(tmp_path / CHECKPOINT_NAME)["logger"]["backend"] == "csv"
+    run.finish("256 frames.", curves={})
