@@ -11,6 +11,7 @@ labelled by its bonus (no overrides file), 2 seeds each, one of them killed at
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -621,3 +622,57 @@ def test_the_legend_fits_the_figure_and_clears_the_panels(tmp_path, n_panels):
     assert box.y0 >= 0
     for ax in axes:
         assert box.y1 <= ax.get_tightbbox(renderer).y0 + 1
+
+
+def _short_run(root: Path, seed: int, overrides: list[str], status: dict | None):
+    # a 1,024-frame run whose log_interval let it log one row, at 128 frames
+    config = {
+        "seed": seed,
+        "bonus": "vae",
+        "env": {"name": MINIGRID},
+        "collector": {"total_frames": 1024},
+    }
+    run_dir = root / f"run_{seed}"
+    write_run(
+        run_dir,
+        config,
+        ["bonus=vae", f"seed={seed}", *overrides],
+        {"train/episode_return": [(128, 0.5)]},
+    )
+    if status is not None:
+        (run_dir / "status.json").write_text(json.dumps(status))
+    return run_dir
+
+
+def test_a_run_is_finished_when_its_status_says_so(tmp_path, capsys):
+    done = {"frames": 1024, "total_frames": 1024, "finished": True}
+    _short_run(tmp_path / "runs", 0, [], done)
+    _short_run(tmp_path / "runs", 1, [], {**done, "frames": 512, "finished": False})
+    _short_run(tmp_path / "runs", 2, [], None)  # an older run dir: the guess
+    meta = runs_metadata(find_runs([tmp_path / "runs"]))
+    assert meta["finished"].tolist() == [True, False, False]
+    main([str(tmp_path / "runs"), "--out", str(tmp_path / "out"), "--oracle", "none"])
+    out = capsys.readouterr().out
+    assert "Unfinished: MiniGrid-Fake-v0 bonus=vae seed 1 (128 of 1024" in out
+    assert "seed 0" not in out  # finished: its status says so
+
+
+def test_overrides_of_what_a_run_reports_do_not_split_its_setting(tmp_path):
+    # seed 1 was started, then resumed with other logger, eval and checkpoint
+    # settings: its overrides.yaml holds them, its setting is seed 0's
+    _short_run(tmp_path / "runs", 0, ["intrinsic.coef=0.1"], None)
+    reported = ["logger.backend=tensorboard", "eval.interval_frames=64"]
+    reported += ["checkpoint.keep=true", "checkpoint.interval_frames=128"]
+    reported += ["torch_threads=2", "resume=true", "resume_without_logs=true"]
+    _short_run(tmp_path / "runs", 1, ["intrinsic.coef=0.1", *reported], None)
+    runs = find_runs([tmp_path / "runs"])
+    assert [r.setting for r in runs] == ["bonus=vae,intrinsic.coef=0.1"] * 2
+
+
+def test_a_damaged_log_line_is_named(tmp_path, capsys):
+    run_dir = _short_run(tmp_path / "runs", 0, [], None)
+    log = run_dir / "logs" / "a2c" / "scalars" / "train" / "episode_return.csv"
+    log.write_text("64,0.25\nline\n128,0.5\n")
+    with pytest.raises(SystemExit):
+        main([str(run_dir), "--out", str(tmp_path / "out"), "--oracle", "none"])
+    assert f"{log}, line 2: 'line' is not a 'step,value' row" in capsys.readouterr().err

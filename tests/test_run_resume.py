@@ -158,7 +158,7 @@ def test_a_failed_write_keeps_the_previous_checkpoint_and_leaves_no_temporary(
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(Checkpoint, "save", half_written)
-    with pytest.raises(OSError, match="No space left"):
+    with pytest.raises(OSError, match="checkpoint.torchrl: no space left on device"):
         ckpt.save()
     assert load_checkpoint(tmp_path / CHECKPOINT_NAME)["frames"] == 128
     assert sorted(p.name for p in tmp_path.iterdir()) == [CHECKPOINT_NAME]

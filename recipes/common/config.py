@@ -407,6 +407,8 @@ class MiniGridConfig:
     """none, vae, icm, rnd, e3b or noveld."""
     resume: str = required(RESUME)
     """auto, true or false (common.run.RESUME_MODES)."""
+    resume_without_logs: bool = required()
+    """Resume a run whose scalar logs are gone (false: refused, naming them)."""
     setting: str = required()
     """Label of this run's settings in aggregated reports."""
     experiment_name: str = required()
@@ -535,6 +537,8 @@ class DDPGConfig:
     """none or vae."""
     resume: str = required(RESUME)
     """auto, true or false (common.run.RESUME_MODES)."""
+    resume_without_logs: bool = required()
+    """Resume a run whose scalar logs are gone (false: refused, naming them)."""
     setting: str = required()
     """Label of this run's settings in aggregated reports."""
     experiment_name: str = required()

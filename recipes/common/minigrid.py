@@ -467,7 +467,7 @@ def load_bonus_model(transform, bonus: str, source: str | os.PathLike) -> int:
     Returns:
         The number of frames the source run had trained for.
     """
-    from .run import find_checkpoint, load_checkpoint
+    from .run import DamagedCheckpoint, find_checkpoint, load_checkpoint
 
     if bonus not in _BONUS_MODELS:
         raise ValueError(
@@ -478,7 +478,10 @@ def load_bonus_model(transform, bonus: str, source: str | os.PathLike) -> int:
         path = find_checkpoint(source)
     except FileNotFoundError as err:
         raise FileNotFoundError(f"intrinsic.init_from: {err}.") from None
-    ckpt = load_checkpoint(path)
+    try:
+        ckpt = load_checkpoint(path)
+    except DamagedCheckpoint as err:
+        raise ValueError(f"intrinsic.init_from: {err}") from err
     source_bonus = ckpt.get("config", {}).get("bonus")
     if source_bonus != bonus:
         raise ValueError(

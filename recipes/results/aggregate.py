@@ -51,8 +51,10 @@ the files of TorchRL's ``CSVLogger``, ``<run>/logs/<algo>/scalars/<group>/<name>
 (rows ``step,value``, the step in environment frames). The **task** of a run is
 ``env.name``; its **setting** is the config's ``setting`` when that is a non-empty
 string, else the Hydra overrides of ``.hydra/overrides.yaml`` minus ``seed``,
-``env.name``, ``+experiment``, ``resume`` and ``hydra.*``, sorted and joined with
-``,`` (see :func:`setting_label`), else the ``bonus``. A step logged twice (a
+``env.name``, ``+experiment``, ``resume``, ``resume_without_logs``,
+``torch_threads``, ``hydra.*``, ``logger.*``, ``eval.*`` and ``checkpoint.*`` (they
+name the run or change what it reports, not what it learns), sorted and joined
+with ``,`` (see :func:`setting_label`), else the ``bonus``. A step logged twice (a
 resumed run) keeps its last value; non-finite values (a moving mean before the
 first episode ended) are dropped. A run that stopped early is kept up to where it
 got and marked unfinished.
@@ -72,10 +74,12 @@ output say.
   frame counts (first crossings) have the resolution of the kept points, about
   ``total_frames / max_points``.
 - ``runs_meta.csv``: ``task,setting,seed,total_frames,last_frame,finished,run_dir``.
-  A run is finished when it logged its last point less than one logging period
-  (the median gap between its logged steps) before ``collector.total_frames``:
-  the recipes log every few updates, so the last logged step of a complete run
-  falls short of the target by up to one period.
+  A run is finished when its ``status.json`` says so (the run writes it with each
+  checkpoint: ``common.run.write_run_status``); a run directory without one
+  (written before it existed) is finished when it logged its last point less
+  than one logging period (the median gap between its logged steps) before
+  ``collector.total_frames``: the recipes log every few updates, so the last
+  logged step of a complete run falls short of the target by up to one period.
 - ``summary.csv``: one row per task and setting: ``task, setting, normalized,
   oracle_return, budget, seeds, seeds_unfinished, seeds_short_of_budget``; for each
   metric ``train_return``, ``train_success``, ``eval_return``, ``eval_success``
@@ -129,7 +133,7 @@ import pandas as pd
 
 # Run as a script: recipes/ holds the shared `common` package.
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from common.run import read_scalar_csv
+from common.run import read_run_status, read_scalar_csv
 
 __all__ = [
     "EPISODES_METRIC",
@@ -190,7 +194,17 @@ _DATA_COLUMNS = [*_RUN_KEYS, "frames", "metric", "value"]
 LEVEL_KEY = "env.stochasticity"
 # Overrides that name the run (which seed, which task, which sweep) or how Hydra
 # ran it, not what was trained: they are left out of a setting's label.
-_NOT_SETTING = {"seed", "env.name", "experiment", "resume"}
+_NOT_SETTING = {
+    "seed",
+    "env.name",
+    "experiment",
+    "resume",
+    "resume_without_logs",
+    "torch_threads",
+}
+# Sections whose overrides change what a run reports or how it saves (they may
+# change on resume, common.run.RESUMABLE_CHANGES), not what it learns.
+_NOT_SETTING_SECTIONS = ("hydra", "logger", "eval", "checkpoint")
 _NOT_REACHED = "not reached"
 
 
@@ -222,9 +236,11 @@ def setting_label(config: Mapping, overrides: Sequence[str] | None) -> str:
     The config's top-level ``setting`` when it is a non-empty string (followed by
     ``,env.stochasticity=L`` for a run at a noise level ``L`` other than 0: the
     same setting at another level is another point of Figure 2); else the
-    Hydra overrides minus those naming the run (``seed``, ``env.name``,
-    ``+experiment``, ``resume``, ``hydra.*``), sorted and joined with ``,``; else
-    the config's ``bonus``.
+    Hydra overrides minus those naming the run or how it ran (``seed``,
+    ``env.name``, ``+experiment``, ``resume``, ``resume_without_logs``,
+    ``torch_threads``, ``hydra.*``) and those of what it reports or how it saves
+    (``logger.*``, ``eval.*``, ``checkpoint.*``), sorted and joined with ``,``;
+    else the config's ``bonus``.
 
     Args:
         config (Mapping): the run's resolved config.
@@ -236,6 +252,9 @@ def setting_label(config: Mapping, overrides: Sequence[str] | None) -> str:
         ...     "bonus=vae", "+experiment=n3s4", "hydra.run.dir=x", "resume=true"])
         'bonus=vae,intrinsic.coef=0.1'
         >>> setting_label({"bonus": "vae"}, ["seed=1", "env.name=MiniGrid-Empty-5x5-v0"])
+        'vae'
+        >>> setting_label({"bonus": "vae"}, ["logger.backend=csv", "eval.episodes=5",
+        ...     "checkpoint.keep=true", "torch_threads=2"])
         'vae'
         >>> setting_label({"bonus": "vae", "setting": "vae_zscore"}, ["bonus=vae"])
         'vae_zscore'
@@ -249,11 +268,8 @@ def setting_label(config: Mapping, overrides: Sequence[str] | None) -> str:
     kept = []
     for override in overrides or ():
         key = override.split("=", 1)[0].lstrip("+~")
-        if (
-            key in _NOT_SETTING
-            or key == "hydra"
-            or key.startswith(("hydra.", "hydra/"))
-        ):
+        section = key.split(".", 1)[0].split("/", 1)[0]
+        if key in _NOT_SETTING or section in _NOT_SETTING_SECTIONS:
             continue
         kept.append(override)
     if kept:
@@ -400,9 +416,11 @@ def runs_metadata(runs: Sequence[RunInfo]) -> pd.DataFrame:
     """The table of ``runs_meta.csv``: one row per run, with its completion.
 
     Columns ``task, setting, seed, total_frames, last_frame, finished, run_dir``.
-    ``last_frame`` is the last step any metric logged; a run is finished when that
-    is less than one logging period (the median gap between its logged steps)
-    before ``total_frames``. Unknown values are empty.
+    ``last_frame`` is the last step any metric logged. A run is finished when its
+    ``status.json`` says so (``common.run.read_run_status``; its budget is then
+    ``total_frames``); without one (a run of an earlier release), when
+    ``last_frame`` is less than one logging period (the median gap between its
+    logged steps) before ``total_frames``. Unknown values are empty.
     """
     rows = []
     for run in runs:
@@ -410,16 +428,27 @@ def runs_metadata(runs: Sequence[RunInfo]) -> pd.DataFrame:
             np.concatenate([s for s, _ in _read_metrics(run).values()] or [[]])
         )
         last = int(steps[-1]) if len(steps) else None
+        total_frames = run.total_frames
         finished = None
-        if last is not None and run.total_frames is not None:
+        try:
+            status = read_run_status(run.path)
+        except ValueError as err:
+            warnings.warn(
+                f"{err}; finished or not is guessed from the logs", stacklevel=2
+            )
+            status = None
+        if status is not None:
+            finished = bool(status["finished"])
+            total_frames = status.get("total_frames", total_frames)
+        elif last is not None and total_frames is not None:
             period = float(np.median(np.diff(steps))) if len(steps) > 1 else 0.0
-            finished = run.total_frames - last < max(period, 1.0)
+            finished = total_frames - last < max(period, 1.0)
         rows.append(
             {
                 "task": run.task,
                 "setting": run.setting,
                 "seed": run.seed,
-                "total_frames": run.total_frames,
+                "total_frames": total_frames,
                 "last_frame": last,
                 "finished": finished,
                 "run_dir": str(run.path),
