@@ -214,9 +214,10 @@ class DamagedCheckpoint(ValueError):
                 "its bytes are neither a TorchRL checkpoint archive nor a "
                 f"torch.save file ({size} bytes)"
             )
+        cause = str(self.error).split(". ")[0].rstrip(".")  # torch's first sentence
         return (
             f"{self.path} is damaged: {what}; reading it failed with "
-            f"{type(self.error).__name__}: {self.error}. A full disk, a crash or "
+            f"{type(self.error).__name__}: {cause}. A full disk, a crash or "
             "an interrupted copy leaves such a file."
         )
 
