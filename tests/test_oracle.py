@@ -613,6 +613,22 @@ def test_suite_replay_in_real_env_succeeds_with_oracle_return(env_id, seeds):
             assert TOGGLE in solution.actions and DROP in solution.actions
 
 
+def test_obstructed_maze_v0_layout_without_its_key_is_unsolvable():
+    # ObstructedMaze-2Dlhb-v0 seed 7: a blocking ball was placed over the box that
+    # held the purple key (minigrid's v1 fixes this), and the blue ball is behind
+    # the purple door. The oracle says so at once instead of searching every state.
+    env = gym.make("MiniGrid-ObstructedMaze-2Dlhb-v0")
+    env.reset(seed=7)
+    grid = env.unwrapped.grid.grid
+    keys = [o.contains for o in grid if o is not None and o.type == "box"]
+    assert [k.color for k in keys] == ["blue"]  # the only key; none is purple
+    solution = solve_minigrid(env)
+    assert not solution.solved and solution.episode_return == 0.0
+    v1 = gym.make("MiniGrid-ObstructedMaze-2Dlhb-v1")
+    v1.reset(seed=7)
+    assert solve_minigrid(v1).solved
+
+
 def _walk_to(env: gym.Env, wanted) -> list[int]:
     """Plays a shortest walk to a pose facing a cell whose object satisfies
     ``wanted``; returns its actions. Dijkstra over (position, direction) on the

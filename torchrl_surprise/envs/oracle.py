@@ -292,11 +292,13 @@ class _LowerBound:
     def regions(self, doors: tuple[int, ...]) -> list[int]:
         """Connected components of the relaxed grid minus locked, closed doors."""
         cached = self._regions.get(doors)
-        if cached is not None:
-            return cached
-        blocked = {
-            self.layout.door_cells[i] for i, state in enumerate(doors) if state == 2
-        }
+        if cached is None:
+            cells = self.layout.door_cells
+            blocked = {cells[i] for i, state in enumerate(doors) if state == _LOCKED}
+            cached = self._regions[doors] = self._components(blocked)
+        return cached
+
+    def _components(self, blocked: set[int]) -> list[int]:
         labels = [-1] * len(self.neighbours)
         for seed in range(len(labels)):
             if labels[seed] >= 0 or self.layout.kinds[seed] in (_WALL, _LAVA):
@@ -311,8 +313,33 @@ class _LowerBound:
                     if labels[other] < 0 and other not in blocked:
                         labels[other] = seed
                         stack.append(other)
-        self._regions[doors] = labels
         return labels
+
+    def _finish_cells(self, objects: tuple[int, ...], pos: int) -> tuple[int, ...]:
+        if self.layout.target == _NOTHING:
+            return self.goals
+        return (self._where(self.layout.target, objects, pos)[0],)
+
+    def solvable(self, state: tuple) -> bool:
+        """False when a locked door with no key of its colour anywhere (keys are
+        never destroyed, boxes release theirs) separates the agent from its goal
+        or object: the search would otherwise explore every state in vain."""
+        pos, _, _, doors, objects, _ = state
+        layout = self.layout
+        key_colours = {
+            colour
+            for kind, colour in zip(layout.object_kinds, layout.object_colors)
+            if kind == _KEY
+        }
+        blocked = {
+            layout.door_cells[i]
+            for i, door_state in enumerate(doors)
+            if door_state == _LOCKED and layout.door_colors[i] not in key_colours
+        }
+        labels = self._components(blocked)
+        return any(
+            labels[cell] == labels[pos] for cell in self._finish_cells(objects, pos)
+        )
 
     def _where(
         self, index: int, objects: tuple[int, ...], pos: int
@@ -465,7 +492,7 @@ def _shortest_actions(layout: _Layout, horizon: int) -> tuple[int, ...] | None:
     done = ("done",)  # the success pseudo-state
     tie = itertools.count()
     start_bound = lower_bound(start)
-    if start_bound > horizon:
+    if start_bound > horizon or not lower_bound.solvable(start):
         return None
     queue = [(start_bound, 0, next(tie), start)]
     while queue:
