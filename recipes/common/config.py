@@ -63,6 +63,7 @@ __all__ = [
     "ALGOS",
     "BONUS_AT",
     "DDPG_BONUSES",
+    "DEVICES",
     "EXPLORATION_NOISES",
     "LOGGER_BACKENDS",
     "MINIGRID_BONUSES",
@@ -110,6 +111,8 @@ EXPLORATION_NOISES: tuple[str, ...] = ("gaussian", "ou")
 """``exploration.noise`` of the DDPG recipe."""
 LOGGER_BACKENDS: tuple[str, ...] = ("csv", "tensorboard", "wandb", "mlflow", "")
 """``logger.backend``; ``""`` logs nothing."""
+DEVICES: tuple[str, ...] = ("cpu", "cuda", "auto")
+"""``device`` of the MiniGrid recipe (auto: cuda when torch sees one, else cpu)."""
 # and those the library owns, taken from it: NORMALIZATIONS, GLOBAL_BONUSES,
 # MINIGRID_BACKENDS
 
@@ -415,6 +418,9 @@ class MiniGridConfig:
     """Name of the sweep's directory, runs/<algo>_minigrid/<name>/."""
     torch_threads: int = required(POSITIVE)
     """torch.set_num_threads; > 0."""
+    device: str = required(one_of(DEVICES))
+    """Where the policy, critics and bonus model run: cpu, cuda or auto (cuda when
+    torch sees one, else cpu); the envs stay on the CPU."""
     algo: AlgoConfig = section(AlgoConfig)
     env: MiniGridEnvConfig = section(MiniGridEnvConfig)
     collector: MiniGridCollectorConfig = section(MiniGridCollectorConfig)

@@ -332,7 +332,7 @@ def shared_trunk(model) -> TensorDictModule:
     return model.module[0]
 
 
-def make_collector(env, policy, cfg, total_frames: int):
+def make_collector(env, policy, cfg, total_frames: int, device=None):
     """The collector of ``env.num_envs * collector.frames_per_env`` frames a batch.
 
     With ``collector.workers`` 1 (the default, and what a config without the entry
@@ -343,8 +343,15 @@ def make_collector(env, policy, cfg, total_frames: int):
     ``seed + w * env.num_envs / workers`` (the sub-envs get the seeds they get with
     one process), ``env`` only gave the specs and is closed. Either way the state
     holds the episodes in progress, so a resumed run continues exactly.
+
+    With ``device`` (the ``device`` setting), the policy runs there and the batch is
+    stored there, the envs step on the CPU (TorchRL moves each step's entries
+    between them); with the CPU, no entry is copied.
     """
     workers = cfg.collector.get("workers", 1)
+    devices = {}
+    if device is not None:
+        devices = dict(policy_device=device, env_device="cpu", storing_device=device)
     frames_per_batch = cfg.env.num_envs * cfg.collector.frames_per_env
     if workers == 1:
         # ResumableCollector: a TorchRL Collector whose state_dict also holds the
@@ -355,6 +362,7 @@ def make_collector(env, policy, cfg, total_frames: int):
             frames_per_batch=frames_per_batch,
             total_frames=total_frames,
             auto_register_policy_transforms=False,
+            **devices,
         )
     env.close()
     per_worker = cfg.env.num_envs // workers
@@ -372,6 +380,7 @@ def make_collector(env, policy, cfg, total_frames: int):
         total_frames=total_frames,
         seed=cfg.seed,
         auto_register_policy_transforms=False,
+        **devices,
     )
 
 

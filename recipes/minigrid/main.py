@@ -76,6 +76,14 @@ register_sweep_pickling(utils, common)
 @hydra.main(config_path=".", config_name="config", version_base=None)
 def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
     validate_minigrid(cfg)
+    # The policy, critics and bonus model's device (cuda without a GPU: refused
+    # here, before anything is built); the envs step on the CPU.
+    device = utils.resolve_device(cfg.device)
+    if cfg.bonus == "rnd" and device.type != "cpu":
+        raise ValueError(
+            "bonus=rnd runs its networks inside the envs (TorchRL's RNDTransform), "
+            f"on the CPU: run it with device=cpu (device={cfg.device} gave {device})."
+        )
     algo = cfg.algo.name
     # Seeds, resume checks, the checkpoint to resume from (common/run.py)
     run = TrainingRun(cfg, algo)
@@ -94,6 +102,10 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
             bonus_transform, cfg.bonus, cfg.intrinsic.init_from
         )
         print(f"Bonus model from {cfg.intrinsic.init_from} ({source_frames} frames).")
+    if bonus_transform is not None:
+        # the bonus model (and its normalisation statistics) with the learner
+        bonus_transform.to(device)
+        bonus_loss.to(device)
     eval_seed = cfg.seed + EVAL_SEED_OFFSET
     eval_env = make_env(cfg, cfg.eval.num_envs, seed=eval_seed)
 
@@ -103,8 +115,12 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
     model, int_value = make_actor_critic(
         env.action_spec, use_int_critic, return_log_prob=algo == "ppo"
     )
-    # The policy in one call per env step (same layers, same draws: utils).
-    policy = utils.SampledCategoricalPolicy(model.get_policy_operator())
+    model.to(device)
+    if int_value is not None:
+        int_value.to(device)
+    # The policy in one call per env step (same layers, same draws: utils); it
+    # takes the envs' CPU observations in evaluation and videos.
+    policy = utils.SampledCategoricalPolicy(model.get_policy_operator(), device)
     trunk = shared_trunk(model)
 
     # Create losses and optimisers
@@ -121,7 +137,7 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         bonus_params = [p for p in bonus_loss.parameters() if p.requires_grad]
         # fused: the same Adam update in one kernel (faster VAE steps on CPU)
         bonus_optim = torch.optim.Adam(bonus_params, lr=cfg.intrinsic.lr, fused=True)
-    buffer = utils.make_minibatch_buffer(cfg)
+    buffer = utils.make_minibatch_buffer(cfg, device)
 
     stats = EpisodeStats(window=cfg.logger.episode_window)
     progress = RunCounters(
@@ -136,7 +152,7 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
     # rollout with the policy's weights after the last update (synced before each
     # batch); the bonus and the updates stay in this process.
     collector = make_collector(
-        env, policy, cfg, total_frames=cfg.collector.total_frames
+        env, policy, cfg, total_frames=cfg.collector.total_frames, device=device
     )
     # What a checkpoint holds, saved and loaded from this one mapping (with the
     # random generators, restored last); restored when resuming.

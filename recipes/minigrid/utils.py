@@ -21,6 +21,7 @@ __all__ = [
     "make_minibatch_buffer",
     "make_optimizer",
     "minibatches",
+    "resolve_device",
     "standardize_advantage",
 ]
 
@@ -36,6 +37,38 @@ LOGGED_LOSSES = {
         "kl_approx",
     ),
 }
+
+
+def resolve_device(name: str) -> torch.device:
+    """The device of the ``device`` setting: the policy, critics and bonus model's.
+
+    ``cpu``; ``cuda`` (a CUDA device must be visible to torch, else a clear error);
+    ``auto``: ``cuda`` when torch sees one, else ``cpu``. The envs stay on the CPU.
+
+    Examples:
+        >>> resolve_device("cpu")
+        device(type='cpu')
+        >>> resolve_device("auto") == torch.device(
+        ...     "cuda" if torch.cuda.is_available() else "cpu")
+        True
+    """
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        build = (
+            f"built with CUDA {torch.version.cuda}"
+            if torch.version.cuda
+            else "a CPU-only build"
+        )
+        raise RuntimeError(
+            "device=cuda, but torch sees no CUDA device "
+            f"(torch.cuda.is_available() is False; torch {torch.__version__} is "
+            f"{build}): run with device=cpu, or device=auto to take a GPU only "
+            "where there is one."
+        )
+    if name not in ("cpu", "cuda"):
+        raise ValueError(f"device must be one of 'cpu', 'cuda', 'auto', got {name!r}.")
+    return torch.device(name)
 
 
 def make_loss(cfg, model, intrinsic_value, bonus_transform):
@@ -80,16 +113,20 @@ def make_optimizer(cfg, params) -> torch.optim.Optimizer:
     return torch.optim.Adam(params, lr=cfg.optim.lr, eps=cfg.optim.eps)
 
 
-def make_minibatch_buffer(cfg) -> ReplayBuffer | None:
+def make_minibatch_buffer(cfg, device=None) -> ReplayBuffer | None:
     """PPO's collected batch, iterated in shuffled minibatches (one epoch per pass).
 
     Its sampler draws the next permutation as an epoch ends: a checkpoint holds it.
+    The batch is stored on ``device`` (the learner's; default the CPU).
     ``None`` for A2C, which takes one step on the whole batch.
     """
     if cfg.algo.name == "a2c":
         return None
     return ReplayBuffer(
-        storage=LazyTensorStorage(cfg.env.num_envs * cfg.collector.frames_per_env),
+        storage=LazyTensorStorage(
+            cfg.env.num_envs * cfg.collector.frames_per_env,
+            device="cpu" if device is None else device,
+        ),
         sampler=SamplerWithoutReplacement(),
         batch_size=cfg.loss.minibatch_size,
     )
@@ -119,6 +156,13 @@ def standardize_advantage(data: TensorDictBase, key="advantage") -> TensorDictBa
     return data
 
 
+def _on(tensor: torch.Tensor, device: torch.device) -> bool:
+    # "cuda" names the current CUDA device; a tensor's device has its index
+    return tensor.device.type == device.type and (
+        device.index is None or tensor.device.index == device.index
+    )
+
+
 class SampledCategoricalPolicy(TensorDictModuleBase):
     """The actor-critic's policy in one call, for collection and evaluation.
 
@@ -135,9 +179,14 @@ class SampledCategoricalPolicy(TensorDictModuleBase):
     call to ``policy`` itself.
 
     Its ``state_dict`` is ``policy``'s (a collector's checkpoint holds the same keys).
+    With ``device``, observations on another device (the envs' CPU, in evaluation
+    and videos) are moved to it and the entries written come back to theirs; the
+    collector hands it observations on ``device`` already.
 
     Args:
         policy: ``model.get_policy_operator()`` of ``make_actor_critic``.
+        device: where ``policy``'s parameters are (``None``: wherever the
+            observations are).
 
     Examples:
         >>> import torch
@@ -158,10 +207,11 @@ class SampledCategoricalPolicy(TensorDictModuleBase):
         True
     """
 
-    def __init__(self, policy):
+    def __init__(self, policy, device: torch.device | str | None = None):
         super().__init__()
         trunk, head, sampler = policy.module
         self.policy = policy
+        self.device = None if device is None else torch.device(device)
         self.in_keys = list(policy.in_keys)
         self.out_keys = list(policy.out_keys)
         # the plain layers and the keys between them
@@ -186,9 +236,15 @@ class SampledCategoricalPolicy(TensorDictModuleBase):
         return self.policy.load_state_dict(state_dict, *args, **kwargs)
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        image = tensordict.get(self._image_key)
+        if self.device is not None and not _on(image, self.device):
+            out = self(tensordict.select(*self.in_keys).to(self.device))
+            out = out.select(*self.out_keys).to(image.device)
+            tensordict.update(out)
+            return tensordict
         if not self._fast or interaction_type() is not InteractionType.RANDOM:
             return self.policy(tensordict)
-        hidden = self._trunk(tensordict.get(self._image_key))
+        hidden = self._trunk(image)
         logits = self._head(hidden)
         # What ProbabilisticTensorDictModule does under RANDOM: Categorical(logits)
         # (its argument checks change no value), sample(), log_prob(action).
