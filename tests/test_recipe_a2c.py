@@ -169,8 +169,17 @@ def test_normalized_advantages_change_the_policy_term_only(tmp_path):
 
 @pytest.mark.parametrize(
     "overrides",
-    [["bonus=vae", "env.stochasticity=2", "intrinsic.update_every=3"], ["bonus=rnd"]],
-    ids=["vae-noise-every3", "rnd"],
+    [
+        # with the inverse head on the VAE's latent, which the checkpoint holds
+        [
+            "bonus=vae",
+            "env.stochasticity=2",
+            "intrinsic.update_every=3",
+            "intrinsic.vae.inverse_weight=1.0",
+        ],
+        ["bonus=rnd"],
+    ],
+    ids=["vae-inverse-noise-every3", "rnd"],
 )
 def test_killed_and_resumed_run_logs_what_the_uninterrupted_run_logs(
     tmp_path, overrides

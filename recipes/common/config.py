@@ -313,6 +313,9 @@ class MiniGridVAEConfig(VAEConfig):
     """elliptical: none, or kl to multiply the episodic bonus by the KL."""
     use_direction: bool = required()
     """The VAE reads the agent's direction as well as the image."""
+    inverse_weight: float = required(NON_NEGATIVE)
+    """Weight of an inverse-dynamics loss on the posterior mean beside the ELBO
+    (0: none); >= 0."""
 
 
 @dataclass

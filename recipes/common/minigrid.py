@@ -45,6 +45,7 @@ from torchrl_surprise.collectors import (
     ResumableMultiSyncCollector,
 )
 from torchrl_surprise.envs import make_minigrid_env
+from torchrl_surprise.modules import InverseDynamicsModel
 from torchrl_surprise.transforms import (
     PrecomputedBonusTransform,
     VAEEllipticalTransform,
@@ -64,6 +65,7 @@ __all__ = [
     "init_rl_starter",
     "load_bonus_model",
     "make_actor_critic",
+    "inverse_head",
     "make_advantage",
     "make_bonus",
     "make_collector",
@@ -222,7 +224,17 @@ def make_bonus(cfg, action_spec, bonus: str):
         variant = icfg.vae.get("variant", "kl")
         common.update(vae_variant_kwargs(variant, icfg.vae))
         transform = VAE_VARIANTS[variant](vae, **common)
-        loss = VAELoss(vae, kl_weight=icfg.vae.kl_weight)
+        inverse = None
+        if icfg.vae.get("inverse_weight", 0.0) > 0:
+            inverse = InverseDynamicsModel.on_vae(
+                vae, action_spec.space.n, hidden_dim=icfg.vae.hidden_dim
+            )
+        loss = VAELoss(
+            vae,
+            kl_weight=icfg.vae.kl_weight,
+            inverse_dynamics=inverse,
+            inverse_weight=icfg.vae.get("inverse_weight", 0.0) or 1.0,
+        )
     elif bonus == "icm":
         icm = ICMModel.for_minigrid(
             num_actions=action_spec.space.n, hidden_dim=icfg.icm.hidden_dim
@@ -272,6 +284,14 @@ def make_bonus(cfg, action_spec, bonus: str):
     else:
         return None, None, None
     return transform, loss, env_side
+
+
+def inverse_head(bonus_loss) -> nn.Module | None:
+    """The inverse model on the VAE's latent (``intrinsic.vae.inverse_weight > 0``),
+    which a checkpoint holds beside the bonus transform (that holds the VAE);
+    ``None`` for every other bonus."""
+    inverse_loss = getattr(bonus_loss, "inverse_loss", None)
+    return None if inverse_loss is None else inverse_loss.model.inverse_model
 
 
 def make_advantage(cfg, model, intrinsic_value, bonus_transform):

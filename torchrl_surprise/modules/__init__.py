@@ -2,7 +2,10 @@
 
 from torchrl_surprise.modules.e3b import E3BModel
 from torchrl_surprise.modules.icm import ICMModel
-from torchrl_surprise.modules.inverse_dynamics import InverseDynamicsModel
+from torchrl_surprise.modules.inverse_dynamics import (
+    InverseDynamicsModel,
+    PosteriorMean,
+)
 from torchrl_surprise.modules.rnd import RNDModel
 from torchrl_surprise.modules.vae import (
     GaussianVectorDecoder,
@@ -20,6 +23,7 @@ __all__ = [
     "InverseDynamicsModel",
     "MiniGridDecoder",
     "MiniGridEncoder",
+    "PosteriorMean",
     "RNDModel",
     "StateVAE",
     "VectorEncoder",

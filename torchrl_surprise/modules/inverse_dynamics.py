@@ -21,7 +21,35 @@ from torchrl_surprise.modules.vae import (
     linear_layer,
 )
 
-__all__ = ["InverseDynamicsModel"]
+__all__ = ["InverseDynamicsModel", "PosteriorMean"]
+
+
+class PosteriorMean(nn.Module):
+    """The posterior mean of a :class:`~torchrl_surprise.modules.StateVAE` as an
+    encoder: ``(*observations) -> loc``, ``out_features = vae.latent_dim``.
+
+    It holds the VAE itself (not a copy): an
+    :class:`InverseDynamicsModel` built on it trains the VAE's encoder, so that
+    its latent keeps what the agent's actions control
+    (:meth:`InverseDynamicsModel.on_vae`).
+
+    Examples:
+        >>> import torch
+        >>> from torchrl_surprise.modules import StateVAE
+        >>> vae = StateVAE.for_vector(obs_dim=3, latent_dim=2, hidden_dim=8)
+        >>> encoder = PosteriorMean(vae)
+        >>> obs = torch.randn(4, 3)
+        >>> torch.equal(encoder(obs), vae.posterior(obs)[0])
+        True
+    """
+
+    def __init__(self, vae: nn.Module):
+        super().__init__()
+        self.vae = vae
+        self.out_features = vae.latent_dim
+
+    def forward(self, *observations: torch.Tensor) -> torch.Tensor:
+        return self.vae.posterior(*observations)[0]
 
 
 class InverseDynamicsModel(nn.Module):
@@ -109,6 +137,44 @@ class InverseDynamicsModel(nn.Module):
             discrete=True,
             hidden_dim=hidden_dim,
             in_keys=["image", "direction"] if use_direction else ["image"],
+            onednn_linear=onednn_linear,
+        )
+
+    @classmethod
+    def on_vae(
+        cls,
+        vae: nn.Module,
+        action_dim: int,
+        discrete: bool = True,
+        hidden_dim: int = 256,
+        onednn_linear: bool = False,
+    ) -> InverseDynamicsModel:
+        """An inverse model on a VAE's posterior mean (:class:`PosteriorMean`).
+
+        Trained beside the VAE's ELBO (``VAELoss(vae, inverse_dynamics=...)``),
+        its loss shapes the latent towards what the agent controls; the VAE is
+        shared, not copied, and the model reads the VAE's ``in_keys``.
+
+        Args:
+            vae (StateVAE): the VAE whose posterior mean is ``phi``.
+            action_dim (int): number of discrete actions, or the action's size.
+            discrete (bool): discrete actions.
+            hidden_dim (int): width of the inverse model.
+            onednn_linear (bool): run the inverse model on ``OneDNNLinear``.
+
+        Examples:
+            >>> from torchrl_surprise.modules import StateVAE
+            >>> vae = StateVAE.for_minigrid(latent_dim=8, hidden_dim=32)
+            >>> model = InverseDynamicsModel.on_vae(vae, action_dim=7)
+            >>> model.in_keys, model.embedding_dim
+            (['image', 'direction'], 8)
+        """
+        return cls(
+            PosteriorMean(vae),
+            action_dim,
+            discrete=discrete,
+            hidden_dim=hidden_dim,
+            in_keys=vae.in_keys,
             onednn_linear=onednn_linear,
         )
 
