@@ -240,3 +240,40 @@ def test_a_checkpoint_without_logger_state_still_resumes(tmp_path):
     run.after_update()
     assert load_checkpoint(tmp_path / CHECKPOINT_NAME)["logger"]["backend"] == "csv"
     run.finish("256 frames.", curves={})
+
+
+def test_a_resumed_wandb_run_continues_the_same_run(tmp_path):
+    pytest.importorskip("wandb")
+    run_dir = tmp_path / "run"
+    cmd = [sys.executable, str(MAIN), f"hydra.run.dir={run_dir}", *TINY]
+    env = {**os.environ, "WANDB_MODE": "offline", "WANDB_SILENT": "true"}
+    proc = subprocess.Popen(
+        [*cmd, "logger.backend=wandb", "collector.total_frames=1000000"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    try:
+        wait_for_checkpoint(run_dir / CHECKPOINT_NAME, min_frames=128)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 128 + signal.SIGTERM, err[-3000:]
+    frames = checkpoint_info(run_dir / CHECKPOINT_NAME)["frames"]
+    resumed = subprocess.run(
+        [*cmd, "logger.backend=wandb", f"collector.total_frames={frames + 64}"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=env,
+    )
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    # an offline W&B run is a directory offline-run-<time>-<run id>: both
+    # processes logged to the one run id the checkpoint holds
+    runs = sorted((run_dir / "logs" / "wandb").glob("offline-run-*"))
+    ids = {p.name.rsplit("-", 1)[1] for p in runs}
+    assert len(runs) == 2 and len(ids) == 1, [p.name for p in runs]
+    saved = load_checkpoint(run_dir / CHECKPOINT_NAME)["logger"]["state"]
+    assert ids == {saved["local"]["id"]}
