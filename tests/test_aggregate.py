@@ -27,6 +27,7 @@ from results.aggregate import (
     find_runs,
     main,
     merge_run_data,
+    read_oracle,
     runs_metadata,
     setting_label,
 )
@@ -676,3 +677,41 @@ def test_a_damaged_log_line_is_named(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main([str(run_dir), "--out", str(tmp_path / "out"), "--oracle", "none"])
     assert f"{log}, line 2: 'line' is not a 'step,value' row" in capsys.readouterr().err
+
+
+def test_envpool_runs_are_their_own_task_normalised_by_envpools_oracle(tmp_path):
+    # the same env id on both backends: two tasks, each with its own oracle row
+    for backend, final in (("gymnasium", 0.4), ("envpool", 0.6)):
+        for seed in (0, 1):
+            config = {
+                "seed": seed,
+                "bonus": "vae",
+                "setting": "vae",
+                "env": {"name": MINIGRID, "backend": backend},
+                "collector": {"total_frames": 10000},
+            }
+            rows = [(s, final * s / 10000) for s in STEPS]
+            write_run(
+                tmp_path / "runs" / f"{backend}_{seed}",
+                config,
+                [f"seed={seed}", f"env.backend={backend}"],
+                {"train/episode_return": rows, "eval/episode_return": rows},
+            )
+    minigrid_oracle, envpool_oracle = tmp_path / "a.csv", tmp_path / "b.csv"
+    pd.DataFrame({"env": [MINIGRID], "mean_return": [0.8]}).to_csv(
+        minigrid_oracle, index=False
+    )
+    pd.DataFrame({"env": [f"{MINIGRID}@envpool"], "mean_return": [0.6]}).to_csv(
+        envpool_oracle, index=False
+    )
+    out = tmp_path / "out"
+    argv = [str(tmp_path / "runs"), "--out", str(out), "--reps", str(REPS)]
+    assert main([*argv, "--oracle", str(minigrid_oracle), str(envpool_oracle)]) == 0
+    summary = read(out, "summary.csv").set_index("task")
+    assert set(summary.index) == {MINIGRID, f"{MINIGRID}@envpool"}
+    assert summary.loc[MINIGRID, "oracle_return"] == pytest.approx(0.8)
+    assert summary.loc[MINIGRID, "train_return_mean"] == pytest.approx(0.5)
+    assert summary.loc[f"{MINIGRID}@envpool", "train_return_mean"] == pytest.approx(1.0)
+    # one env id in two oracle tables is ambiguous: refused, naming the table
+    with pytest.raises(ValueError, match="another table"):
+        read_oracle(minigrid_oracle, minigrid_oracle)

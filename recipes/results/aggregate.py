@@ -46,10 +46,10 @@ bootstrap, default 0) and ``--max-points`` (points kept per run and metric in
 
 **Runs.** A run directory is any directory under the given paths holding
 ``config_resolved.yaml`` (keys read: ``env.name``, ``seed``, ``bonus``,
-``collector.total_frames`` and an optional top-level ``setting``). Its scalars are
+``collector.total_frames``, ``env.backend`` and an optional top-level ``setting``). Its scalars are
 the files of TorchRL's ``CSVLogger``, ``<run>/logs/<algo>/scalars/<group>/<name>.csv``
 (rows ``step,value``, the step in environment frames). The **task** of a run is
-``env.name``; its **setting** is the config's ``setting`` when that is a non-empty
+``env.name``, as ``<env id>@envpool`` for a run on envpool (:func:`task_label`); its **setting** is the config's ``setting`` when that is a non-empty
 string, else the Hydra overrides of ``.hydra/overrides.yaml`` minus ``seed``,
 ``env.name``, ``+experiment``, ``resume``, ``resume_without_logs``,
 ``torch_threads``, ``hydra.*``, ``logger.*``, ``eval.*`` and ``checkpoint.*`` (they
@@ -158,6 +158,7 @@ __all__ = [
     "plot_levels",
     "plot_profiles",
     "read_oracle",
+    "task_label",
     "report_table",
     "status_text",
     "runs_metadata",
@@ -197,6 +198,7 @@ LEVEL_KEY = "env.stochasticity"
 _NOT_SETTING = {
     "seed",
     "env.name",
+    "env.backend",
     "experiment",
     "resume",
     "resume_without_logs",
@@ -228,6 +230,29 @@ class RunInfo:
     seed: int
     total_frames: int | None
     scalars_dir: Path | None
+
+
+#: What :func:`task_label` appends to the env id of a run on envpool's MiniGrid.
+ENVPOOL_SUFFIX = "@envpool"
+
+
+def task_label(config: Mapping) -> str:
+    """The task of a run: ``env.name``, with :data:`ENVPOOL_SUFFIX` on envpool.
+
+    envpool's MiniGrid is the same task with its own layout for a seed, so its
+    runs are another task here: never pooled with minigrid's runs of the env id,
+    and normalised by the oracle over envpool's layouts (the oracle table's row
+    for ``<env id>@envpool``).
+
+    Examples:
+        >>> task_label({"env": {"name": "MiniGrid-DoorKey-8x8-v0"}})
+        'MiniGrid-DoorKey-8x8-v0'
+        >>> task_label({"env": {"name": "MiniGrid-DoorKey-8x8-v0", "backend": "envpool"}})
+        'MiniGrid-DoorKey-8x8-v0@envpool'
+    """
+    env = config.get("env") or {}
+    name = str(env.get("name"))
+    return name + ENVPOOL_SUFFIX if env.get("backend") == "envpool" else name
 
 
 def setting_label(config: Mapping, overrides: Sequence[str] | None) -> str:
@@ -304,7 +329,7 @@ def _read_run(run_dir: Path) -> RunInfo:
     total_frames = (config.get("collector") or {}).get("total_frames")
     return RunInfo(
         path=run_dir,
-        task=str(task),
+        task=task_label(config),
         setting=setting_label(config, overrides),
         seed=int(seed),
         total_frames=None if total_frames is None else int(total_frames),
@@ -611,13 +636,23 @@ def keep_runs(
     return data, meta
 
 
-def read_oracle(path: str | os.PathLike) -> dict[str, float]:
-    """The oracle mean return of each env id, from a CSV with ``env,mean_return``."""
-    table = pd.read_csv(path)
-    missing = {"env", "mean_return"} - set(table.columns)
-    if missing:
-        raise ValueError(f"{path} has no column {', '.join(sorted(missing))}")
-    return {str(e): float(r) for e, r in zip(table["env"], table["mean_return"])}
+def read_oracle(*paths: str | os.PathLike) -> dict[str, float]:
+    """The oracle mean return of each env id, from CSVs with ``env,mean_return``.
+
+    Several tables are merged (minigrid's layouts, envpool's as
+    ``<env id>@envpool``, the suite's); an env id in two of them is refused.
+    """
+    oracle: dict[str, float] = {}
+    for path in paths:
+        table = pd.read_csv(path)
+        missing = {"env", "mean_return"} - set(table.columns)
+        if missing:
+            raise ValueError(f"{path} has no column {', '.join(sorted(missing))}")
+        for env, value in zip(table["env"], table["mean_return"]):
+            if str(env) in oracle:
+                raise ValueError(f"{path}: the oracle of {env} is in another table too")
+            oracle[str(env)] = float(value)
+    return oracle
 
 
 def normalize_returns(data: pd.DataFrame, oracle: Mapping[str, float]) -> pd.DataFrame:
@@ -1481,8 +1516,17 @@ def aggregate(
     return paths
 
 
-DEFAULT_ORACLE = Path("docs/results/oracle/oracle_returns.csv")
-"""The oracle table written by ``python -m torchrl_surprise.envs.oracle``."""
+ORACLE_DIR = Path("docs/results/oracle")
+"""The oracle tables: ``oracle_returns.csv`` (``python -m
+torchrl_surprise.envs.oracle``, minigrid's layouts), ``envpool_oracle_returns.csv``
+(``benchmarks/envpool_oracle.py``, envpool's layouts) and the suite's
+(``benchmarks/suite_oracle.py``)."""
+
+
+def default_oracle_tables() -> list[Path]:
+    """Every ``*oracle_returns*.csv`` of :data:`ORACLE_DIR` (from the repository
+    root), sorted."""
+    return sorted(ORACLE_DIR.glob("*oracle_returns*.csv"))
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -1522,9 +1566,11 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--oracle",
         type=Path,
-        default=DEFAULT_ORACLE if DEFAULT_ORACLE.exists() else None,
-        help="CSV with env,mean_return (default: the committed oracle table, "
-        f"{DEFAULT_ORACLE}, when run from the repository root); 'none' to skip",
+        nargs="+",
+        default=None,
+        help="CSVs with env,mean_return (default: the committed oracle tables, "
+        f"{ORACLE_DIR}/*oracle_returns*.csv, when run from the repository root); "
+        "'none' to skip",
     )
     parser.add_argument("--reps", type=int, default=2000, help="bootstrap replications")
     parser.add_argument("--seed", type=int, default=0, help="seed of the bootstrap")
@@ -1547,8 +1593,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.out is None:
         parser.error("--out is required with run directories or --from-data")
     try:
-        use_oracle = args.oracle is not None and str(args.oracle) != "none"
-        oracle = read_oracle(args.oracle) if use_oracle else {}
+        tables = default_oracle_tables() if args.oracle is None else args.oracle
+        use_oracle = [str(t) for t in tables] != ["none"]
+        oracle = read_oracle(*tables) if use_oracle else {}
         if args.from_data is not None and not args.from_data.is_file():
             raise FileNotFoundError(f"{args.from_data} does not exist")
         selecting = args.settings is not None or args.tasks is not None
@@ -1637,7 +1684,8 @@ def _regenerate_all(parser: argparse.ArgumentParser, args) -> int:
             budgets = table["budget"].dropna().unique()
             if len(budgets) == 1:
                 argv += ["--budget", str(int(budgets[0]))]
-        argv += ["--oracle", str(args.oracle) if args.oracle else "none"]
+        if args.oracle is not None:
+            argv += ["--oracle", *map(str, args.oracle)]
         argv += ["--reps", str(args.reps), "--seed", str(args.seed)]
         print(f"== {runs_csv.parent}", flush=True)
         main(argv)
