@@ -41,6 +41,7 @@ TASKS = (
     "MiniGrid-MultiRoom-N6-v0",
     "MiniGrid-ObstructedMaze-1Dlhb-v0",
     "MiniGrid-ObstructedMaze-2Dlhb-v0",
+    "MiniGrid-ObstructedMaze-2Dlhb-v1",
 )
 
 
