@@ -8,8 +8,9 @@ by :func:`~torchrl_surprise.envs.oracle.solve_minigrid` (a shortest solution, so
 return is the best achievable with the whole grid in view). Prints the mean return
 with its standard error (population std / sqrt(n)), the mean and largest number of
 steps and the seconds per layout, and writes one CSV per backend with the columns of
-:data:`~torchrl_surprise.envs.oracle.ORACLE_CSV_COLUMNS` (the minigrid one is what
-``recipes/results/aggregate.py --oracle`` reads).
+:data:`~torchrl_surprise.envs.oracle.ORACLE_CSV_COLUMNS`; envpool's rows are named
+``<env id>@envpool``, as ``recipes/results/aggregate.py`` names runs on envpool, and
+its ``--oracle`` reads both tables.
 
 Usage::
 
@@ -32,6 +33,8 @@ from torchrl_surprise.envs.oracle import (
     solve_minigrid,
     write_oracle_csv,
 )
+
+ENVPOOL_SUFFIX = "@envpool"  # recipes.results.aggregate.ENVPOOL_SUFFIX
 
 TASKS = (
     "MiniGrid-KeyCorridorS3R3-v0",
@@ -93,7 +96,10 @@ def main() -> None:
             else:
                 solutions = envpool_solutions(task, args.seeds)
             seconds = (time.perf_counter() - start) / args.seeds
-            row = oracle_row(task, solutions)
+            # recipes/results/aggregate.py names a run on envpool <env id>@envpool
+            # (its layouts differ per seed) and merges the oracle tables by name.
+            label = task if backend == "minigrid" else f"{task}{ENVPOOL_SUFFIX}"
+            row = oracle_row(label, solutions)
             tables[backend].append(row)
             se = row["std_return"] / row["seeds"] ** 0.5
             print(
