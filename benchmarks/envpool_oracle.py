@@ -9,15 +9,21 @@ MultiRoom tasks are also measured without redrawing the layouts whose entry door
 opens onto a room's corner (``redraw_corner_doors=False``, envpool's own
 generator). ``z`` is the difference of the means over its standard error.
 
+With ``--out FOLDER`` it also writes ``envpool_oracle_returns.csv`` there: the
+rows of envpool's layouts (redrawn as the backend does), each task named
+``<env id>@envpool``, as the aggregation names envpool runs' tasks and reads their
+oracle (``recipes/results/aggregate.py``).
+
 Usage::
 
-    python benchmarks/envpool_oracle.py --seeds 1000
+    python benchmarks/envpool_oracle.py --seeds 1000 --out docs/results/oracle
 """
 
 from __future__ import annotations
 
 import argparse
 import statistics
+from pathlib import Path
 
 import gymnasium as gym
 
@@ -25,7 +31,12 @@ from torchrl_surprise.envs.envpool import (
     EnvPoolMiniGridEnv,
     minigrid_env_from_envpool_state,
 )
-from torchrl_surprise.envs.oracle import oracle_returns, solve_minigrid
+from torchrl_surprise.envs.oracle import (
+    oracle_returns,
+    oracle_row,
+    solve_minigrid,
+    write_oracle_csv,
+)
 
 TASKS = (
     "MiniGrid-MultiRoom-N3-S4-v0",
@@ -61,7 +72,11 @@ def summary(solutions: list) -> tuple[float, float, float, float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=1000)
+    parser.add_argument(
+        "--out", type=Path, help="folder for envpool_oracle_returns.csv (optional)"
+    )
     args = parser.parse_args()
+    table = []
     header = (
         f"{'task':<30} {'layouts':<22} {'mean return':>12} {'s.e.':>7} "
         f"{'unsolvable':>10} {'mean steps':>10} {'z':>6}"
@@ -71,7 +86,9 @@ def main() -> None:
     for task in TASKS:
         ref = summary(oracle_returns(task, range(args.seeds)))
         rows = [("minigrid", ref)]
-        rows.append(("envpool", summary(envpool_solutions(task, args.seeds))))
+        solutions = envpool_solutions(task, args.seeds)
+        table.append(oracle_row(f"{task}@envpool", solutions))
+        rows.append(("envpool", summary(solutions)))
         if "MultiRoom" in task:
             raw = envpool_solutions(task, args.seeds, redraw=False)
             rows.append(("envpool, no redraw", summary(raw)))
@@ -85,6 +102,10 @@ def main() -> None:
                 f"{task:<30} {name:<22} {mean:>12.4f} {se:>7.4f} "
                 f"{unsolvable:>10.1%} {steps:>10.2f} {z:>6.1f}"
             )
+    if args.out is not None:
+        print(
+            f"Wrote {write_oracle_csv(table, args.out / 'envpool_oracle_returns.csv')}"
+        )
 
 
 if __name__ == "__main__":
