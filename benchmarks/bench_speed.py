@@ -6,21 +6,24 @@ same machine load), the median over rounds of the per-round ratio. The load
 average is recorded with each measurement.
 
 1. Bonus overhead in the A2C recipe: frames/s with ``bonus=vae|icm|rnd`` over
-   ``bonus=none`` (recipe defaults, ``recipes/a2c_minigrid``), and beside them the
+   ``bonus=none`` (recipe defaults, ``recipes/minigrid``, ``algo=a2c``), and beside them the
    VAE bonus trained on every rollout (the committed studies' setting), on every
    8th, and never (an untrained VAE: the bonus's own cost).
 2. DDPG (``recipes/ddpg_mujoco``, Hopper-v5): the recipe's ``time/updates_per_s``
    (its whole loop, collection included) over a bare eager-PyTorch DDPG update of
    the same sizes (OurDDPG's loop: 256-256 MLPs, batch 256, Adam, soft target
    update, 1 thread); and ``bonus=vae`` over ``bonus=none``.
-3. The A2C recipe (``bonus=none``) over torch-ac 1.4.0 running the same A2C
-   (rl-starter-files' model and defaults), on MultiRoom-N3S4 and DoorKey-8x8.
+3. The A2C recipe (``bonus=none``, on minigrid's envs and on envpool's) over
+   torch-ac 1.4.0 running the same A2C (rl-starter-files' model and defaults),
+   on MultiRoom-N3S4 and DoorKey-8x8 (goal 2x).
    Skipped, with a message, when torch-ac is not installed (``pip install -e
    ".[bench]"``).
 4. The env pipeline: ``make_minigrid_env`` / ``make_mujoco_env`` (with the
    recipes' numbers of envs, ``env.rollout`` with random actions) over a raw
    gymnasium loop of one env of the same id, in steps per CPU second of this
-   single-threaded process (the wall-clock ratio is in the details).
+   single-threaded process (the wall-clock ratio is in the details); for
+   MiniGrid also ``make_minigrid_env(16, backend="envpool")`` (one envpool
+   thread, goal 5x).
 5. Memory: each recipe's peak resident memory (a subprocess with a short budget,
    ``ru_maxrss`` from ``wait4``), the DDPG replay buffer's bytes per transition
    (measured in the recipe's buffer) extrapolated to 1M transitions, and two runs
@@ -35,6 +38,12 @@ average is recorded with each measurement.
    what the training process leaves unparallelised. Printed under the table:
    the collector's frames per CPU second in one process with 16, 8, 4 and 2 envs
    (what a worker's share of the envs costs per frame).
+7. The learners against the simulator: the MiniGrid recipe with ``algo=a2c`` and
+   ``algo=ppo`` (defaults: the elliptical VAE bonus), on the envpool and the
+   gymnasium backend, in frames per CPU second of its process (its logged
+   ``time/fps_cpu``) over a raw gymnasium loop of one MultiRoom-N3S4 env in
+   steps per CPU second; goals A2C 1.0, PPO 0.75 (3x the ratios at commit
+   6453210, 0.32 and 0.24).
 
 Recipes and the peer run as subprocesses (their start-up is not timed: the recipes
 time their own training loop, the peer is timed the same way). Usage::
@@ -71,7 +80,8 @@ from torch import nn
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "recipes"))  # the recipes' shared `common` package
-A2C_MAIN = ROOT / "recipes" / "a2c_minigrid" / "main.py"
+# the MiniGrid recipe (algo=a2c, its default, or algo=ppo)
+A2C_MAIN = ROOT / "recipes" / "minigrid" / "main.py"
 DDPG_MAIN = ROOT / "recipes" / "ddpg_mujoco" / "main.py"
 GIB = 1024**3
 MEMORY_LIMIT = 24 * GIB
@@ -87,12 +97,23 @@ VAE_SCHEDULES = {
 PEER_ENVS = ("MiniGrid-MultiRoom-N3-S4-v0", "MiniGrid-DoorKey-8x8-v0")
 MINIGRID_PIPELINE_ENVS = ("MiniGrid-DoorKey-8x8-v0", "MiniGrid-MultiRoom-N3-S4-v0")
 MUJOCO_PIPELINE_ENVS = ("Hopper-v5", "HalfCheetah-v5")
-A2C_NUM_ENVS = 16  # recipes/a2c_minigrid/config.yaml
+A2C_NUM_ENVS = 16  # recipes/minigrid/config.yaml
 # item 6: the bonuses (without and with the bonus's work in the training process),
 # and the frames per env of the collector-alone batches (the A2C and PPO recipes')
 WORKER_BONUSES = ("none", "vae")
 COLLECTOR_STEPS = (8, 128)
 DDPG_NUM_ENVS = 4  # recipes/ddpg_mujoco/config.yaml
+# item 4: the envpool backend's goal over the raw loop (per CPU second)
+ENVPOOL_PIPELINE_GOAL = 5.0
+# item 7: each learner's frames per CPU second (its defaults: the elliptical VAE
+# bonus) over a raw gymnasium loop of one env of this task, per backend; the goals
+# are 3x the ratios at commit 6453210 (A2C 0.32, PPO 0.24, gymnasium backend)
+RECIPE_TASK = "MiniGrid-MultiRoom-N3-S4-v0"
+RECIPE_GOALS = {"a2c": 1.0, "ppo": 0.75}
+RECIPE_AT_6453210 = {"a2c": 0.32, "ppo": 0.24}
+RECIPE_BACKENDS = ("envpool", "gymnasium")
+# item 3's goal: the A2C recipe with bonus=none over torch-ac
+PEER_GOAL = 2.0
 
 __all__ = ["main"]
 
@@ -205,9 +226,14 @@ def a2c_recipe(
     tmp: Path,
     workers: int = 1,
     extra: Sequence[str] = (),
+    algo: str = "a2c",
+    metric: str = "time/fps",
 ) -> Sample:
-    run_dir = tmp / f"a2c_{bonus}_{len(list(tmp.iterdir()))}"
+    """The MiniGrid recipe's own ``metric`` (``time/fps``: frames per second of its
+    loop; ``time/fps_cpu``: per CPU second of its process) at the end of a run."""
+    run_dir = tmp / f"{algo}_{bonus}_{len(list(tmp.iterdir()))}"
     overrides = [
+        f"algo={algo}",
         *extra,
         f"bonus={bonus}",
         f"collector.total_frames={frames}",
@@ -222,7 +248,7 @@ def a2c_recipe(
         overrides.append(f"collector.workers={workers}")
     load1 = os.getloadavg()[0]
     child = run_child([sys.executable, str(A2C_MAIN), *overrides])
-    fps = last_scalar(run_dir, "a2c", "time/fps")
+    fps = last_scalar(run_dir, algo, metric)
     return Sample(fps, load1, {"maxrss_bytes": child.maxrss_bytes})
 
 
@@ -624,6 +650,7 @@ class Plan:
     ddpg_frames: int
     bare_updates: int
     env_steps: int
+    recipe_frames: int = 40_960
 
 
 FULL = Plan(
@@ -641,6 +668,7 @@ QUICK = Plan(
     ddpg_frames=2_000,
     bare_updates=300,
     env_steps=2_000,
+    recipe_frames=8_192,
 )
 
 
@@ -671,7 +699,7 @@ def machine() -> dict:
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="a fast smoke run")
-    parser.add_argument("--items", type=int, nargs="+", default=[1, 2, 3, 4, 5, 6])
+    parser.add_argument("--items", type=int, nargs="+", default=[1, 2, 3, 4, 5, 6, 7])
     parser.add_argument("--rounds", type=int, help="interleaved rounds per ratio")
     parser.add_argument("--peer-threads", type=int, default=1)
     parser.add_argument("--out", help="output path prefix (.json and .txt added)")
@@ -790,7 +818,11 @@ def main(argv: list[str] | None = None) -> dict:
                 for env_name in PEER_ENVS:
                     targets.append(
                         Target(
-                            3, f"A2C ours / torch-ac, {env_name}", None, 1.5, note=msg
+                            3,
+                            f"A2C ours / torch-ac, {env_name}",
+                            None,
+                            PEER_GOAL,
+                            note=msg,
                         )
                     )
             else:
@@ -800,6 +832,13 @@ def main(argv: list[str] | None = None) -> dict:
                         {
                             "ours": lambda e=env_name: a2c_recipe(
                                 "none", e, plan.peer_frames, tmp
+                            ),
+                            "ours, envpool": lambda e=env_name: a2c_recipe(
+                                "none",
+                                e,
+                                plan.peer_frames,
+                                tmp,
+                                extra=["env.backend=envpool"],
                             ),
                             "torch-ac": lambda e=env_name: peer(
                                 e, plan.peer_frames, args.peer_threads
@@ -814,16 +853,18 @@ def main(argv: list[str] | None = None) -> dict:
                         }
                         for k, v in samples.items()
                     }
-                    targets.append(
-                        Target(
-                            3,
-                            f"A2C ours / torch-ac, {env_name.removeprefix('MiniGrid-')}",
-                            paired_ratio(samples, "ours", "torch-ac"),
-                            1.5,
-                            note=f"{med(samples['ours']):,.0f} / "
-                            f"{med(samples['torch-ac']):,.0f}",
+                    for ours, label in (("ours", ""), ("ours, envpool", ", envpool")):
+                        targets.append(
+                            Target(
+                                3,
+                                f"A2C ours{label} / torch-ac, "
+                                f"{env_name.removeprefix('MiniGrid-')}",
+                                paired_ratio(samples, ours, "torch-ac"),
+                                PEER_GOAL,
+                                note=f"{med(samples[ours]):,.0f} / "
+                                f"{med(samples['torch-ac']):,.0f}",
+                            )
                         )
-                    )
 
         if 4 in args.items:
             # One process, one thread: its CPU time is what the steps cost, less
@@ -836,13 +877,23 @@ def main(argv: list[str] | None = None) -> dict:
             torch.set_num_threads(1)
             for env_name, n, factory in pipelines:
                 ours = f"{factory.__name__}(num_envs={n})"
-                samples = interleave(
-                    {
-                        ours: lambda f=factory, e=env_name, n=n: ours_env(
-                            lambda: f(e, num_envs=n, seed=0), plan.env_steps
+                setups = {
+                    ours: lambda f=factory, e=env_name, n=n: ours_env(
+                        lambda: f(e, num_envs=n, seed=0), plan.env_steps
+                    ),
+                    "raw gymnasium": lambda e=env_name: raw_env(e, plan.env_steps),
+                }
+                envpool = f"{factory.__name__}(num_envs={n}, backend=envpool)"
+                if factory is make_minigrid_env:
+                    # the C++ port: several times the steps, so several times as many
+                    setups[envpool] = lambda e=env_name, n=n: ours_env(
+                        lambda: make_minigrid_env(
+                            e, num_envs=n, seed=0, backend="envpool", num_threads=1
                         ),
-                        "raw gymnasium": lambda e=env_name: raw_env(e, plan.env_steps),
-                    },
+                        4 * plan.env_steps,
+                    )
+                samples = interleave(
+                    setups,
                     plan.rounds + 2,  # short measurements: two more rounds
                 )
                 details["envs"][env_name] = {
@@ -868,6 +919,19 @@ def main(argv: list[str] | None = None) -> dict:
                         f"wall clock {wall_ratio:.2f}x",
                     )
                 )
+                if envpool in samples:
+                    targets.append(
+                        Target(
+                            4,
+                            f"{factory.__name__}({n}, envpool) / raw, "
+                            f"{env_name.removeprefix('MiniGrid-')}",
+                            paired_ratio(samples, envpool, "raw gymnasium"),
+                            ENVPOOL_PIPELINE_GOAL,
+                            note=f"{med(samples[envpool]):,.0f} / "
+                            f"{med(samples['raw gymnasium']):,.0f} steps/CPU-s; "
+                            "1 envpool thread",
+                        )
+                    )
 
         if 5 in args.items:
             print("[5] memory")
@@ -976,6 +1040,53 @@ def main(argv: list[str] | None = None) -> dict:
                     for n, v in per_cpu_s.items()
                 )
             )
+
+        if 7 in args.items:
+            # The recipe's frames per CPU second of its process (time/fps_cpu: its
+            # loop, all its threads) over this process's raw loop, steps per CPU
+            # second: both what one core does, which the machine's load moves less
+            # than wall clock.
+            print(
+                "[7] the learners (defaults) vs a raw gymnasium loop of one "
+                f"{RECIPE_TASK} env, per CPU second",
+                flush=True,
+            )
+            torch.set_num_threads(1)
+            setups = {"raw gymnasium": lambda: raw_env(RECIPE_TASK, plan.env_steps)}
+            for algo in RECIPE_GOALS:
+                for backend in RECIPE_BACKENDS:
+                    setups[f"{algo}, {backend}"] = lambda a=algo, b=backend: a2c_recipe(
+                        "vae",
+                        None,
+                        plan.recipe_frames,
+                        tmp,
+                        extra=[f"env.backend={b}"],
+                        algo=a,
+                        metric="time/fps_cpu",
+                    )
+            samples = interleave(setups, plan.rounds)
+            details["recipes_vs_raw"] = {
+                k: {
+                    "per_cpu_s": [s.value for s in v],
+                    "load1": [s.load1 for s in v],
+                }
+                for k, v in samples.items()
+            }
+            raw = med(samples["raw gymnasium"])
+            for algo, goal in RECIPE_GOALS.items():
+                for backend in RECIPE_BACKENDS:
+                    name = f"{algo}, {backend}"
+                    targets.append(
+                        Target(
+                            7,
+                            f"{algo.upper()} recipe ({backend}) / raw loop, "
+                            "frames per CPU-s",
+                            paired_ratio(samples, name, "raw gymnasium"),
+                            goal,
+                            note=f"{med(samples[name]):,.0f} / {raw:,.0f}; "
+                            f"6453210: {RECIPE_AT_6453210[algo]:.2f}x",
+                        )
+                    )
 
     details["load_end"] = load()
     details["minutes"] = round((time.perf_counter() - started) / 60, 1)
