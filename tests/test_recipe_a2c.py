@@ -95,17 +95,25 @@ def test_vae_variants_run_end_to_end(tmp_path, variant):
 
 def test_transfer_starts_the_bonus_model_from_another_run(tmp_path):
     source = tmp_path / "source"
-    run_recipe(source, "bonus=vae", "collector.total_frames=128")
+    # with the inverse model on the VAE's latent, which starts from the source's too
+    inverse = "intrinsic.vae.inverse_weight=1.0"
+    run_recipe(source, "bonus=vae", inverse, "collector.total_frames=128")
     frozen = tmp_path / "frozen"
     out = run_recipe(
         frozen,
         "bonus=vae",
+        inverse,
         "env.name=MiniGrid-DoorKey-5x5-v0",
         f"intrinsic.init_from={source}",
         "intrinsic.finetune=false",
         "collector.total_frames=128",
     ).stdout
     assert "Bonus model from" in out
+    heads = [
+        load_checkpoint(run / "checkpoint.torchrl")["bonus_inverse_head"]
+        for run in (source, frozen)
+    ]
+    assert all(torch.equal(heads[0][k], heads[1][k]) for k in heads[0])
 
     def vae_weights(run):
         state = load_checkpoint(run / "checkpoint.torchrl")["bonus_transform"]

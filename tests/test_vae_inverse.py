@@ -70,6 +70,14 @@ def test_an_inverse_model_on_another_encoder_is_refused():
         VAELoss(vae, inverse_dynamics=InverseDynamicsModel.on_vae(another_vae, 7))
 
 
+def test_a_weight_that_is_not_positive_is_refused():
+    vae = StateVAE.for_minigrid(latent_dim=4, hidden_dim=16)
+    inverse = InverseDynamicsModel.on_vae(vae, 7)
+    for weight in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="inverse_weight must be > 0"):
+            VAELoss(vae, inverse_dynamics=inverse, inverse_weight=weight)
+
+
 def test_a_missing_action_is_named():
     vae = StateVAE.for_minigrid(latent_dim=4, hidden_dim=16)
     loss = VAELoss(vae, inverse_dynamics=InverseDynamicsModel.on_vae(vae, 7))

@@ -224,17 +224,15 @@ def make_bonus(cfg, action_spec, bonus: str):
         variant = icfg.vae.get("variant", "kl")
         common.update(vae_variant_kwargs(variant, icfg.vae))
         transform = VAE_VARIANTS[variant](vae, **common)
-        inverse = None
+        inverse = {}
         if icfg.vae.get("inverse_weight", 0.0) > 0:
-            inverse = InverseDynamicsModel.on_vae(
-                vae, action_spec.space.n, hidden_dim=icfg.vae.hidden_dim
+            inverse = dict(
+                inverse_dynamics=InverseDynamicsModel.on_vae(
+                    vae, action_spec.space.n, hidden_dim=icfg.vae.hidden_dim
+                ),
+                inverse_weight=icfg.vae.inverse_weight,
             )
-        loss = VAELoss(
-            vae,
-            kl_weight=icfg.vae.kl_weight,
-            inverse_dynamics=inverse,
-            inverse_weight=icfg.vae.get("inverse_weight", 0.0) or 1.0,
-        )
+        loss = VAELoss(vae, kl_weight=icfg.vae.kl_weight, **inverse)
     elif bonus == "icm":
         icm = ICMModel.for_minigrid(
             num_actions=action_spec.space.n, hidden_dim=icfg.icm.hidden_dim
@@ -485,13 +483,19 @@ def rollout_metrics(stats, data, bonus_transform=None, bonus_td=None) -> dict:
 _BONUS_MODELS = {"vae": "vae", "icm": "icm", "e3b": "model", "noveld": "rnd"}
 
 
-def load_bonus_model(transform, bonus: str, source: str | os.PathLike) -> int:
+def load_bonus_model(
+    transform, bonus: str, source: str | os.PathLike, inverse_head=None
+) -> int:
     """Starts a bonus model from another run's (transfer), without its statistics.
 
     Args:
         transform: the bonus transform of this run.
         bonus (str): ``"vae"``, ``"icm"``, ``"e3b"`` or ``"noveld"``.
         source: a run directory or its checkpoint file.
+        inverse_head: this run's inverse model on the VAE's latent
+            (:func:`inverse_head`, ``intrinsic.vae.inverse_weight > 0``), started
+            from the source run's when that run trained one (else it starts
+            afresh, and this says so).
 
     Returns:
         The number of frames the source run had trained for.
@@ -531,6 +535,14 @@ def load_bonus_model(transform, bonus: str, source: str | os.PathLike) -> int:
             f"intrinsic.init_from: the model in {path} does not fit this run's "
             f"(sizes in intrinsic.{bonus}.* must match the source run's): {err}"
         ) from err
+    if inverse_head is not None:
+        if "bonus_inverse_head" in ckpt:
+            inverse_head.load_state_dict(ckpt["bonus_inverse_head"])
+        else:
+            print(
+                f"intrinsic.init_from: {path} trained no inverse model on the VAE's "
+                "latent; this run's starts afresh."
+            )
     return int(ckpt.get("frames", 0))
 
 

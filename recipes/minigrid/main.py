@@ -99,7 +99,10 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         # Transfer: the bonus model starts from another run's (a resumed run
         # restores its own from the checkpoint below).
         source_frames = load_bonus_model(
-            bonus_transform, cfg.bonus, cfg.intrinsic.init_from
+            bonus_transform,
+            cfg.bonus,
+            cfg.intrinsic.init_from,
+            inverse_head=inverse_head(bonus_loss),
         )
         print(f"Bonus model from {cfg.intrinsic.init_from} ({source_frames} frames).")
     if bonus_transform is not None:

@@ -97,6 +97,11 @@ class VAELoss(BonusModelLoss):
         self.inverse_loss = None
         self.inverse_weight = float(inverse_weight)
         if inverse_dynamics is not None:
+            if not self.inverse_weight > 0:
+                raise ValueError(
+                    f"VAELoss: inverse_weight must be > 0 with inverse_dynamics, got "
+                    f"{inverse_weight}."
+                )
             encoder = getattr(inverse_dynamics, "encoder", None)
             if getattr(encoder, "vae", None) is not vae:
                 raise ValueError(
