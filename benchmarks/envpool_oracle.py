@@ -46,14 +46,17 @@ TASKS = (
 
 
 def envpool_solutions(task: str, seeds: int, redraw: bool | None = None) -> list:
+    """The oracle's solutions of envpool's first layouts of envs ``0..seeds-1``
+    (``redraw``: the backend's ``redraw_corner_doors``; None: its default)."""
     env = EnvPoolMiniGridEnv(task, num_envs=seeds, seed=0, redraw_corner_doors=redraw)
     env.reset()
+    states = env.debug_states()
+    env.close()
     twin = gym.make(task)
     solutions = []
-    for state in env.debug_states():
+    for state in states:
         twin = minigrid_env_from_envpool_state(state, task, env=twin)
         solutions.append(solve_minigrid(twin))
-    env.close()
     return solutions
 
 

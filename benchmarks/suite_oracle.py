@@ -24,13 +24,12 @@ import time
 import warnings
 from pathlib import Path
 
-import gymnasium as gym
+from envpool_oracle import envpool_solutions  # benchmarks/, beside this script
 
 from torchrl_surprise.envs.oracle import (
     format_oracle_table,
     oracle_returns,
     oracle_row,
-    solve_minigrid,
     write_oracle_csv,
 )
 
@@ -46,25 +45,6 @@ TASKS = (
     "MiniGrid-ObstructedMaze-2Dlhb-v0",
     "MiniGrid-ObstructedMaze-2Dlhb-v1",
 )
-
-
-def envpool_solutions(task: str, seeds: int) -> list:
-    """The oracle's solutions of envpool's first layouts of envs ``0..seeds-1``."""
-    from torchrl_surprise.envs.envpool import (
-        EnvPoolMiniGridEnv,
-        minigrid_env_from_envpool_state,
-    )
-
-    env = EnvPoolMiniGridEnv(task, num_envs=seeds, seed=0)
-    env.reset()
-    states = env.debug_states()
-    env.close()
-    twin = gym.make(task)
-    solutions = []
-    for state in states:
-        twin = minigrid_env_from_envpool_state(state, task, env=twin)
-        solutions.append(solve_minigrid(twin))
-    return solutions
 
 
 def main() -> None:
