@@ -4,6 +4,8 @@ run as a user runs them (tiny budgets), and the workers' config checks."""
 from __future__ import annotations
 
 import functools
+import os
+import signal
 import socket
 import subprocess
 import sys
@@ -11,7 +13,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from _recipe_run import differing_logs, kill_after_checkpoint
+from _recipe_run import differing_logs, kill_after_checkpoint, wait_for_checkpoint
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
@@ -99,6 +101,32 @@ def test_killed_and_resumed_run_with_workers_logs_what_the_uninterrupted_run_log
     )
     assert proc.returncode != 0
     assert "collector.workers: 2 -> 1" in proc.stderr
+
+
+def test_sigusr2_to_the_whole_job_saves_the_workers_state_and_resumes(tmp_path):
+    # SLURM signals every process of the job step: the workers as well as the
+    # main process, which must still reach them to save the collector's state.
+    run_dir = tmp_path / "run"
+    cmd = [sys.executable, str(A2C / "main.py"), f"hydra.run.dir={run_dir}"]
+    workers = ["bonus=none", "collector.workers=2"]
+    proc = subprocess.Popen(
+        [*cmd, *TINY, *workers, "collector.total_frames=1000000"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    try:
+        wait_for_checkpoint(run_dir / "checkpoint.torchrl", min_frames=128)
+        os.killpg(proc.pid, signal.SIGUSR2)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 128 + signal.SIGUSR2, err[-3000:]
+    assert "SIGUSR2: stopped at" in out, out[-2000:]
+    frames = load_checkpoint(run_dir / "checkpoint.torchrl")["frames"]
+    proc = run_recipe(A2C, run_dir, *workers, f"collector.total_frames={frames + 32}")
+    assert f"Done: {frames + 32} frames" in proc.stdout
 
 
 def test_ppo_with_two_workers(tmp_path):

@@ -39,7 +39,31 @@ from torchrl.collectors import Collector, MultiSyncCollector
 from torchrl.envs import EnvBase, TransformedEnv
 from torchrl.weight_update import SharedMemWeightSyncScheme
 
-__all__ = ["ResumableCollector", "ResumableMultiSyncCollector", "worker_seed"]
+__all__ = [
+    "STOP_SIGNALS",
+    "ResumableCollector",
+    "ResumableMultiSyncCollector",
+    "worker_seed",
+]
+
+STOP_SIGNALS: tuple[signal.Signals, ...] = (
+    signal.SIGINT,
+    signal.SIGTERM,
+    signal.SIGUSR2,
+    signal.SIGHUP,
+)
+"""The signals on which a run saves its state and stops: Ctrl-C, a scheduler's
+SIGTERM, SIGUSR2 (what submitit asks SLURM to send before the time limit) and
+SIGHUP (the terminal closed). They often reach every process of the job (Ctrl-C
+and a closed terminal the foreground process group, SLURM every process of the
+job step): the worker processes of :class:`ResumableMultiSyncCollector` ignore
+them, so that the main process can still gather their state and save it.
+
+Examples:
+    >>> import signal
+    >>> signal.SIGUSR2 in STOP_SIGNALS
+    True
+"""
 
 
 def _runtime_env(env: EnvBase):
@@ -130,11 +154,11 @@ class _ResumableWorker(ResumableCollector):
     """
 
     def __init__(self, *args, seed: int, worker_idx: int | None = None, **kwargs):
-        # The main process handles SIGINT and SIGTERM (a checkpoint, then shutting
-        # the workers down); a Ctrl-C sent to the whole process group must not kill
-        # a worker before the main process has saved its state.
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        # The main process handles the stop signals (a checkpoint, then shutting
+        # the workers down); one sent to the whole process group or job step must
+        # not kill a worker before the main process has saved its state.
+        for sig in STOP_SIGNALS:
+            signal.signal(sig, signal.SIG_IGN)
         torch.manual_seed(worker_seed(seed, worker_idx or 0))
         super().__init__(*args, worker_idx=worker_idx, **kwargs)
 

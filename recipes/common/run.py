@@ -55,6 +55,8 @@ from torchrl.checkpoint import (
     StateDictCheckpointAdapter,
 )
 
+from torchrl_surprise import collectors as _collectors
+
 __all__ = [
     "BONUS_SECTIONS",
     "RESUMABLE_CHANGES",
@@ -1050,16 +1052,13 @@ class RunCounters:
         self.__dict__.update(state)
 
 
-STOP_SIGNALS: tuple[signal.Signals, ...] = (
-    signal.SIGINT,
-    signal.SIGTERM,
-    signal.SIGUSR2,
-    signal.SIGHUP,
-)
+STOP_SIGNALS = _collectors.STOP_SIGNALS
 """The signals that stop a run with a checkpoint (:class:`StopSignal`): Ctrl-C, a
 scheduler's SIGTERM, SIGUSR2 (what submitit asks SLURM to send ``signal_delay_s``,
 120 s, before the time limit) and SIGHUP (the terminal closed; not when ignored, as
-under ``nohup``)."""
+under ``nohup``). The library's tuple
+(:data:`torchrl_surprise.collectors.STOP_SIGNALS`), which the collector's worker
+processes ignore."""
 
 
 class StopSignal:
