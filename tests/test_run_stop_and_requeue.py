@@ -24,6 +24,7 @@ from common.run import (
     RunCounters,
     StopSignal,
     TrainingRun,
+    _submitit_requeue,
     checkpoint_info,
     load_checkpoint,
     read_scalar_csv,
@@ -93,6 +94,29 @@ def test_an_ignored_sighup_stays_ignored():
         stop.restore()
     finally:
         signal.signal(signal.SIGHUP, previous)
+
+
+def test_a_sigterm_after_submitits_sigusr2_still_requeues(monkeypatch):
+    # SLURM's SIGTERM can follow its SIGUSR2 before the update ends: the run
+    # stops for the first signal and submitit's handler still requeues the job.
+    requeued = []
+    previous = signal.signal(signal.SIGUSR2, lambda *a: requeued.append(a[0]))
+    try:
+        stop = StopSignal()
+        os.kill(os.getpid(), signal.SIGUSR2)
+        os.kill(os.getpid(), signal.SIGTERM)
+        stop.restore()
+    finally:
+        signal.signal(signal.SIGUSR2, previous)
+    assert stop.received == signal.SIGUSR2 and stop.name == "SIGUSR2"
+    assert stop.seen == [signal.SIGUSR2, signal.SIGTERM]
+    monkeypatch.setenv("SUBMITIT_EXECUTOR", "slurm")
+    requeue = _submitit_requeue(stop)
+    assert requeue is not None
+    requeue()
+    assert requeued == [signal.SIGUSR2]
+    monkeypatch.delenv("SUBMITIT_EXECUTOR")
+    assert _submitit_requeue(stop) is None, "not a submitit job: no requeue"
 
 
 def test_a_submitit_job_saves_on_sigusr2_is_requeued_and_resumes(tmp_path):

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import copyreg
 import errno
+import functools
 import importlib
 import json
 import logging
@@ -1067,22 +1068,29 @@ class StopSignal:
     A training loop checks it once per iteration; when set, it saves a checkpoint
     and exits (:meth:`TrainingRun.after_update`): Ctrl-C sends SIGINT, a cluster
     scheduler SIGTERM before preemption, submitit SIGUSR2 before the time limit,
-    a closed terminal SIGHUP. A second SIGINT interrupts at once. A SIGHUP that is
-    ignored (``nohup``) stays ignored. The handlers found in place are kept
-    (:meth:`previous`, :meth:`restore`): submitit's own for SIGUSR2 requeues its
-    job once the run has saved (:meth:`TrainingRun.after_update`).
+    a closed terminal SIGHUP. The first signal is the one the run stops for
+    (:attr:`received`, :attr:`name`); every one is recorded (:attr:`seen`), so a
+    scheduler's SIGTERM after submitit's SIGUSR2 still lets submitit requeue the
+    job. A second SIGINT interrupts at once. A SIGHUP that is ignored (``nohup``)
+    stays ignored. The handlers found in place are kept (:meth:`previous`,
+    :meth:`restore`): submitit's own for SIGUSR2 requeues its job once the run has
+    saved (:meth:`TrainingRun.after_update`).
 
     Examples:
         >>> import os, signal
         >>> stop = StopSignal()
         >>> os.kill(os.getpid(), signal.SIGUSR2)
-        >>> bool(stop), stop.name
-        (True, 'SIGUSR2')
+        >>> os.kill(os.getpid(), signal.SIGTERM)
+        >>> bool(stop), stop.name, [signal.Signals(s).name for s in stop.seen]
+        (True, 'SIGUSR2', ['SIGUSR2', 'SIGTERM'])
         >>> stop.restore()
     """
 
     def __init__(self, signals: Sequence[int] = STOP_SIGNALS):
         self.received: int | None = None
+        """The first stop signal received (``None`` before any)."""
+        self.seen: list[int] = []
+        """Every stop signal received, in order."""
         self._previous = {}
         for sig in signals:
             if sig == signal.SIGHUP and signal.getsignal(sig) == signal.SIG_IGN:
@@ -1090,9 +1098,11 @@ class StopSignal:
             self._previous[sig] = signal.signal(sig, self._handle)
 
     def _handle(self, signum, frame) -> None:
-        if self.received == signal.SIGINT and signum == signal.SIGINT:
+        if signum == signal.SIGINT and signal.SIGINT in self.seen:
             raise KeyboardInterrupt
-        self.received = signum
+        self.seen.append(signum)
+        if self.received is None:
+            self.received = signum
 
     def __bool__(self) -> bool:
         return self.received is not None
@@ -1455,7 +1465,7 @@ class TrainingRun:
             # resume=auto and continues from the checkpoint just saved.
             _register_recipes_pickling()
             self._stop.restore()
-            requeue(self._stop.received, None)
+            requeue()
         _exit_process(128 + self._stop.received)
 
     def finish(
@@ -1512,19 +1522,19 @@ def _register_recipes_pickling() -> None:
 
 
 def _submitit_requeue(stop: StopSignal):
-    """Submitit's handler of the signal that stopped the run, when this process is
-    a submitit job (``SUBMITIT_EXECUTOR``) and the signal is the one submitit
-    installs a handler for (``SUBMITIT_PREEMPT_SIGNAL``, SIGUSR2): the handler
-    requeues the job (``max_num_timeout`` times at most) and exits. ``None``
-    otherwise."""
+    """Submitit's handler of its preempt signal (``SUBMITIT_PREEMPT_SIGNAL``,
+    SIGUSR2), called with that signal, when this process is a submitit job
+    (``SUBMITIT_EXECUTOR``) and the signal is among those received (a scheduler's
+    SIGTERM may follow it): the handler requeues the job (``max_num_timeout``
+    times at most) and exits. ``None`` otherwise."""
     if not os.environ.get("SUBMITIT_EXECUTOR"):
         return None
     name = "SIG" + os.environ.get("SUBMITIT_PREEMPT_SIGNAL", "USR2")
     preempt = getattr(signal, name, None)
-    if stop.received != preempt:
+    if preempt is None or preempt not in stop.seen:
         return None
-    handler = stop.previous(stop.received)
-    return handler if callable(handler) else None
+    handler = stop.previous(preempt)
+    return functools.partial(handler, preempt, None) if callable(handler) else None
 
 
 def _in_sweep() -> bool:
