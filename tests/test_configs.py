@@ -284,6 +284,13 @@ def test_a_bad_value_is_refused_naming_its_setting(run, override):
                     "bonus=rnd collector.workers=2",
                     "Run bonus=rnd with collector.workers=1",
                 ),
+                *(
+                    (
+                        f"device={device} collector.workers=2",
+                        f"device={device} with collector.workers=2: ",
+                    )
+                    for device in ("cuda", "auto")
+                ),
                 (
                     "bonus=vae intrinsic.vae.variant=info_gain "
                     "intrinsic.update_every=2",

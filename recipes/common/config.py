@@ -649,6 +649,17 @@ def validate_minigrid(cfg) -> None:
             "the collected batch in the main process and work with any number of "
             "workers)."
         )
+    if workers > 1 and cfg.device != "cpu":
+        # auto included, whatever this machine has: a config valid here is valid
+        # on the cluster's GPU nodes too.
+        raise ValueError(
+            f"device={cfg.device} with collector.workers={workers}: the worker "
+            "processes' policy would sample from the CUDA generator (device=auto "
+            "picks cuda wherever torch sees a GPU), which the checkpoint does not "
+            "save, so a resumed run would not continue the uninterrupted one. Run "
+            f"device=cpu with collector.workers={workers}, or device=cuda with "
+            "collector.workers=1."
+        )
     variant = cfg.intrinsic.vae.variant
     update_every = cfg.intrinsic.update_every
     if (
