@@ -233,16 +233,12 @@ def test_the_logger_state_is_saved_and_a_resumed_run_continues_it(tmp_path):
     _train(tmp_path, 256)
     state = load_checkpoint(tmp_path / CHECKPOINT_NAME)["logger"]
     assert state["backend"] == "csv"
-    assert [s for s, _ in state["state"]["local"]["scalars"]["train/x"]] == [
-        64,
-        128,
-        192,
-        256,
-    ]
-    run = _train(tmp_path, 384)
-    # the logger continued the first part's run: it knows its scalars
-    logged = run.logger.experiment.scalars["train/x"]
-    assert [s for s, _ in logged] == [64, 128, 192, 256, 320, 384]
+    # not the history of every scalar logged: it would grow with the run
+    assert not state["state"]["local"]["scalars"]
+    _train(tmp_path, 384)
+    # the logger continued the first part's files, each step once
+    steps, _ = read_scalar_csv(tmp_path / "logs" / "demo" / "scalars" / "train/x.csv")
+    assert steps.tolist() == [64, 128, 192, 256, 320, 384]
 
 
 def test_a_checkpoint_without_logger_state_still_resumes(tmp_path):

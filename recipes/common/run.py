@@ -1640,11 +1640,31 @@ def _holds_component(path: Path, name: str) -> bool:
     return not _is_legacy(path) and name in Checkpoint.manifest(path)["components"]
 
 
+def _without_csv_history(backend: str, state: Mapping[str, Any]) -> dict[str, Any]:
+    """``state``, a logger's ``state_dict()``, without TorchRL's CSV logger's
+    history of every ``(step, value)`` logged (``local.scalars``), which would make
+    each checkpoint grow with the run: the recipes always log with a ``step``, so
+    a resumed CSV logger does not need it; its counters stay. Other backends'
+    states are returned as they are.
+
+    Examples:
+        >>> state = {"exp_name": "a2c", "local": {"scalars": {"x": [(64, 1.0)]},
+        ...          "videos_counter": {}, "text_counter": {}}}
+        >>> _without_csv_history("csv", state)["local"]
+        {'scalars': {}, 'videos_counter': {}, 'text_counter': {}}
+    """
+    local = state.get("local")
+    if backend != "csv" or not isinstance(local, Mapping):
+        return dict(state)
+    return {**state, "local": {**local, "scalars": {}}}
+
+
 class _LoggerState:
     """The checkpoint's ``"logger"``: the backend and TorchRL's
     ``Logger.state_dict()`` of the run's logger (W&B's run id, the CSV logger's
-    counters), which a resumed run opens its logger with (:func:`get_run_logger`).
-    Saving it flushes the logger: what was logged up to a checkpoint is on disk."""
+    counters; not the CSV logger's history of scalars, :func:`_without_csv_history`),
+    which a resumed run opens its logger with (:func:`get_run_logger`). Saving it
+    flushes the logger: what was logged up to a checkpoint is on disk."""
 
     def __init__(self, backend: str):
         self.backend = backend
@@ -1654,7 +1674,9 @@ class _LoggerState:
     def state_dict(self) -> dict[str, Any]:
         state: dict[str, Any] = {"backend": self.backend}
         if self.logger is not None:
-            state["state"] = self.logger.state_dict()
+            state["state"] = _without_csv_history(
+                self.backend, self.logger.state_dict()
+            )
         return state
 
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
@@ -1665,7 +1687,9 @@ class _LoggerState:
         on resume)."""
         if not self.saved or self.saved.get("backend") != backend:
             return None
-        return self.saved.get("state")
+        state = self.saved.get("state")
+        # a checkpoint written before the history was left out still holds it
+        return None if state is None else _without_csv_history(backend, state)
 
 
 RESUMED_LOGGERS: tuple[str, ...] = ("csv", "tensorboard", "wandb")
