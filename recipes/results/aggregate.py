@@ -193,10 +193,12 @@ _RUN_KEYS = ["task", "setting", "seed"]
 _DATA_COLUMNS = [*_RUN_KEYS, "frames", "metric", "value"]
 #: The override that names a run's noise level in its setting label.
 LEVEL_KEY = "env.stochasticity"
-# Overrides that name the run (which seed, which task, which sweep) or how Hydra
-# ran it, not what was trained: they are left out of a setting's label.
+# Overrides that name the run (which seed, which task, which sweep) or how it ran
+# (Hydra, threads, the device), not what was trained: they are left out of a
+# setting's label.
 _NOT_SETTING = {
     "seed",
+    "device",
     "env.name",
     "env.backend",
     "experiment",
@@ -263,7 +265,7 @@ def setting_label(config: Mapping, overrides: Sequence[str] | None) -> str:
     same setting at another level is another point of Figure 2); else the
     Hydra overrides minus those naming the run or how it ran (``seed``,
     ``env.name``, ``+experiment``, ``resume``, ``resume_without_logs``,
-    ``torch_threads``, ``hydra.*``) and those of what it reports or how it saves
+    ``torch_threads``, ``device``, ``hydra.*``) and those of what it reports or how it saves
     (``logger.*``, ``eval.*``, ``checkpoint.*``), sorted and joined with ``,``;
     else the config's ``bonus``.
 
@@ -281,6 +283,8 @@ def setting_label(config: Mapping, overrides: Sequence[str] | None) -> str:
         >>> setting_label({"bonus": "vae"}, ["logger.backend=csv", "eval.episodes=5",
         ...     "checkpoint.keep=true", "torch_threads=2"])
         'vae'
+        >>> setting_label({"bonus": "vae"}, ["device=cuda", "bonus=vae"])
+        'bonus=vae'
         >>> setting_label({"bonus": "vae", "setting": "vae_zscore"}, ["bonus=vae"])
         'vae_zscore'
         >>> setting_label({"setting": "icm", "env": {"stochasticity": 2}}, None)
