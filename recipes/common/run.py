@@ -1407,7 +1407,8 @@ class TrainingRun:
             self.name,
             cfg.logger.project_name,
             state_dict=logger_state.saved_for(cfg.logger.backend),
-            purge_after=self.counters.frames,
+            # a fresh run has no events of a killed run to hide
+            purge_after=self.counters.frames if self._source is not None else None,
         )
         logger_state.logger = self.logger
         self._stop = StopSignal()
