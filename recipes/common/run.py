@@ -182,6 +182,8 @@ class DamagedCheckpoint(ValueError):
 
     Attributes:
         path (Path): the damaged file.
+        run_dir (Path | None): the run being resumed from it: the message then
+            says how to go on with that run.
         earlier (Path | None): the newest readable checkpoint kept beside it.
         earlier_frames (int | None): the frames ``earlier`` holds.
 
@@ -195,11 +197,23 @@ class DamagedCheckpoint(ValueError):
         common.run.DamagedCheckpoint: .../checkpoint.torchrl is damaged: it is empty (0 bytes)...
     """
 
-    def __init__(self, path: str | os.PathLike, error: BaseException):
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        error: BaseException,
+        run_dir: str | os.PathLike | None = None,
+    ):
         self.path = Path(path)
         self.error = error
+        self.run_dir = None if run_dir is None else Path(run_dir)
         self.earlier, self.earlier_frames = _earlier_checkpoint(self.path)
-        super().__init__(self._describe() + " " + self._use_earlier())
+        if self.run_dir is None:
+            super().__init__(self._describe() + " " + self._use_earlier())
+        else:
+            super().__init__(
+                f"Cannot resume {self.run_dir}: {self._describe()} "
+                + " ".join(self._resume_advice())
+            )
 
     def _describe(self) -> str:
         try:
@@ -237,7 +251,10 @@ class DamagedCheckpoint(ValueError):
 
     def for_resume(self, run_dir: str | os.PathLike) -> DamagedCheckpoint:
         """The same error, saying how to go on with the run in ``run_dir``."""
-        run_dir = Path(run_dir)
+        return DamagedCheckpoint(self.path, self.error, run_dir=run_dir)
+
+    def _resume_advice(self) -> list[str]:
+        run_dir = self.run_dir
         advice = []
         if self.earlier is not None:
             advice.append(
@@ -252,13 +269,7 @@ class DamagedCheckpoint(ValueError):
             f"To start afresh, move the run directory away (mv {run_dir} "
             f"{run_dir}.damaged) or pass another hydra.run.dir, with resume=false."
         )
-        error = DamagedCheckpoint.__new__(DamagedCheckpoint)
-        error.path, error.error = self.path, self.error
-        error.earlier, error.earlier_frames = self.earlier, self.earlier_frames
-        ValueError.__init__(
-            error, f"Cannot resume {run_dir}: {self._describe()} " + " ".join(advice)
-        )
-        return error
+        return advice
 
 
 def _earlier_checkpoint(path: Path) -> tuple[Path | None, int | None]:
