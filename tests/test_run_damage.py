@@ -453,3 +453,10 @@ def test_status_records_how_far_the_run_got(tmp_path):
     _train(tmp_path, 512)
     status = json.loads((tmp_path / "status.json").read_text())
     assert (status["frames"], status["finished"]) == (512, True)
+
+
+def test_status_names_an_envpool_run_as_the_aggregation_does(tmp_path):
+    env = {"name": "MiniGrid-Empty-5x5-v0", "backend": "envpool"}
+    _train(tmp_path, 128, env=env)
+    status = json.loads((tmp_path / "status.json").read_text())
+    assert status["task"] == "MiniGrid-Empty-5x5-v0@envpool"

@@ -58,6 +58,8 @@ from torchrl.checkpoint import (
 
 from torchrl_surprise import collectors as _collectors
 
+from .labels import run_labels
+
 __all__ = [
     "BONUS_SECTIONS",
     "RESUMABLE_CHANGES",
@@ -499,12 +501,16 @@ def _scalar_logs(run_dir: Path) -> list[str]:
 
 
 def write_run_status(
-    run_dir: str | os.PathLike, config: Mapping[str, Any], frames: int
+    run_dir: str | os.PathLike,
+    config: Mapping[str, Any],
+    frames: int,
+    labels: Mapping[str, Any] | None = None,
 ) -> Path:
     """Writes ``<run_dir>/status.json`` atomically: how far the run got.
 
-    Keys: ``task`` (``env.name``), ``seed``, ``setting`` (the label the
-    aggregation gives the run, ``results.aggregate.setting_label``), ``frames``
+    Keys: ``task`` (``env.name``, ``<env id>@envpool`` on envpool), ``seed``,
+    ``setting`` (the labels the aggregation gives the run: ``labels``, else
+    :func:`common.labels.run_labels` of ``config`` and the run's overrides), ``frames``
     (done, as in the checkpoint), ``total_frames`` (the budget,
     ``collector.total_frames``), ``finished`` (``frames >= total_frames``),
     ``logs`` (the scalar logs written so far, relative to the run directory:
@@ -520,20 +526,14 @@ def write_run_status(
         >>> status["finished"], status["frames"], status["setting"]
         (True, 1024, 'vae')
     """
-    from results.aggregate import setting_label
-
     run_dir = Path(run_dir)
-    overrides = None
-    overrides_file = run_dir / ".hydra" / "overrides.yaml"
-    if overrides_file.is_file():
-        from omegaconf import OmegaConf
-
-        overrides = [str(o) for o in OmegaConf.load(overrides_file)]
+    if labels is None:
+        labels = run_labels(config, run_dir)
     total = (config.get("collector") or {}).get("total_frames")
     status = {
-        "task": (config.get("env") or {}).get("name"),
-        "seed": config.get("seed"),
-        "setting": setting_label(config, overrides),
+        "task": labels["task"],
+        "seed": labels["seed"],
+        "setting": labels["setting"],
         "frames": int(frames),
         "total_frames": None if total is None else int(total),
         "finished": total is not None and int(frames) >= int(total),
@@ -685,8 +685,11 @@ class RunCheckpoint:
         keep_dir: where :meth:`save_every` also keeps each periodic checkpoint
             (:class:`torchrl.checkpoint.CheckpointRotation`, all kept); ``None``
             (default) keeps only the latest.
-        status (bool): also rewrite ``status.json`` beside the checkpoint with
-            each save (:func:`write_run_status`; a run's, not a tool's).
+        status (bool | Mapping): also rewrite ``status.json`` beside the
+            checkpoint with each save (:func:`write_run_status`; a run's, not a
+            tool's); a mapping gives the run's labels (``task``, ``seed``,
+            ``setting``: :func:`common.labels.run_labels`), else they are
+            computed here, once.
 
     Examples:
         >>> import tempfile, os
@@ -712,10 +715,17 @@ class RunCheckpoint:
         components: Mapping[str, Any],
         config: Mapping[str, Any],
         keep_dir: str | os.PathLike | None = None,
-        status: bool = False,
+        status: bool | Mapping[str, Any] = False,
     ):
         self.path = Path(path)
-        self.status = status
+        self.status = bool(status)
+        self._labels = (
+            dict(status)
+            if isinstance(status, Mapping)
+            else run_labels(config, self.path.parent)
+            if status
+            else None
+        )
         self.components = {k: v for k, v in components.items() if v is not None}
         if "rng" in self.components:
             raise KeyError("'rng' is the checkpoint's own: the global generators.")
@@ -756,7 +766,12 @@ class RunCheckpoint:
         if self.path.name == CHECKPOINT_NAME and legacy.exists():
             legacy.unlink()  # superseded by the checkpoint just written
         if self.status:
-            write_run_status(self.path.parent, self.config, self._metadata()["frames"])
+            write_run_status(
+                self.path.parent,
+                self.config,
+                self._metadata()["frames"],
+                labels=self._labels,
+            )
 
     def _left_as_it_was(self) -> str:
         for previous in (self.path, self.path.with_name(LEGACY_CHECKPOINT_NAME)):
@@ -1398,14 +1413,16 @@ class TrainingRun:
             raise KeyError("'logger' is the run's own: the logger's state.")
         logger_state = _LoggerState(cfg.logger.backend)
         saved = {**components, "logger": logger_state}
+        config = _resolved(cfg)
         self._checkpoint = RunCheckpoint(
             self.run_dir / CHECKPOINT_NAME,
             saved,
-            config=_resolved(cfg),
+            config=config,
             keep_dir=self.run_dir / KEPT_CHECKPOINTS
             if cfg.checkpoint.get("keep", False)
             else None,
-            status=True,
+            # what identifies the run in status.json: computed once
+            status=run_labels(config, self.run_dir),
         )
         if self._source is not None:
             if not _holds_component(self._source, "logger"):

@@ -133,6 +133,17 @@ import pandas as pd
 
 # Run as a script: recipes/ holds the shared `common` package.
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+# the labels of a run, defined beside the run that writes them to status.json
+# (names kept here for compatibility)
+from common.labels import (  # noqa: F401
+    _NOT_SETTING,
+    _NOT_SETTING_SECTIONS,
+    ENVPOOL_SUFFIX,
+    LEVEL_KEY,
+    read_overrides,
+    setting_label,
+    task_label,
+)
 from common.run import read_run_status, read_scalar_csv
 
 __all__ = [
@@ -191,24 +202,6 @@ EPISODE_WINDOW = 100
 _RUN_KEYS = ["task", "setting", "seed"]
 #: The columns of ``runs.csv``.
 _DATA_COLUMNS = [*_RUN_KEYS, "frames", "metric", "value"]
-#: The override that names a run's noise level in its setting label.
-LEVEL_KEY = "env.stochasticity"
-# Overrides that name the run (which seed, which task, which sweep) or how it ran
-# (Hydra, threads, the device), not what was trained: they are left out of a
-# setting's label.
-_NOT_SETTING = {
-    "seed",
-    "device",
-    "env.name",
-    "env.backend",
-    "experiment",
-    "resume",
-    "resume_without_logs",
-    "torch_threads",
-}
-# Sections whose overrides change what a run reports or how it saves (they may
-# change on resume, common.run.RESUMABLE_CHANGES), not what it learns.
-_NOT_SETTING_SECTIONS = ("hydra", "logger", "eval", "checkpoint")
 _NOT_REACHED = "not reached"
 
 
@@ -234,78 +227,6 @@ class RunInfo:
     scalars_dir: Path | None
 
 
-#: What :func:`task_label` appends to the env id of a run on envpool's MiniGrid.
-ENVPOOL_SUFFIX = "@envpool"
-
-
-def task_label(config: Mapping) -> str:
-    """The task of a run: ``env.name``, with :data:`ENVPOOL_SUFFIX` on envpool.
-
-    envpool's MiniGrid is the same task with its own layout for a seed, so its
-    runs are another task here: never pooled with minigrid's runs of the env id,
-    and normalised by the oracle over envpool's layouts (the oracle table's row
-    for ``<env id>@envpool``).
-
-    Examples:
-        >>> task_label({"env": {"name": "MiniGrid-DoorKey-8x8-v0"}})
-        'MiniGrid-DoorKey-8x8-v0'
-        >>> task_label({"env": {"name": "MiniGrid-DoorKey-8x8-v0", "backend": "envpool"}})
-        'MiniGrid-DoorKey-8x8-v0@envpool'
-    """
-    env = config.get("env") or {}
-    name = str(env.get("name"))
-    return name + ENVPOOL_SUFFIX if env.get("backend") == "envpool" else name
-
-
-def setting_label(config: Mapping, overrides: Sequence[str] | None) -> str:
-    """The label of a run's setting: what tells it apart from the other runs.
-
-    The config's top-level ``setting`` when it is a non-empty string (followed by
-    ``,env.stochasticity=L`` for a run at a noise level ``L`` other than 0: the
-    same setting at another level is another point of Figure 2); else the
-    Hydra overrides minus those naming the run or how it ran (``seed``,
-    ``env.name``, ``+experiment``, ``resume``, ``resume_without_logs``,
-    ``torch_threads``, ``device``, ``hydra.*``) and those of what it reports or how it saves
-    (``logger.*``, ``eval.*``, ``checkpoint.*``), sorted and joined with ``,``;
-    else the config's ``bonus``.
-
-    Args:
-        config (Mapping): the run's resolved config.
-        overrides (Sequence[str] | None): the strings of ``.hydra/overrides.yaml``,
-            or ``None`` when the run has none.
-
-    Examples:
-        >>> setting_label({"bonus": "vae"}, ["seed=1", "intrinsic.coef=0.1",
-        ...     "bonus=vae", "+experiment=n3s4", "hydra.run.dir=x", "resume=true"])
-        'bonus=vae,intrinsic.coef=0.1'
-        >>> setting_label({"bonus": "vae"}, ["seed=1", "env.name=MiniGrid-Empty-5x5-v0"])
-        'vae'
-        >>> setting_label({"bonus": "vae"}, ["logger.backend=csv", "eval.episodes=5",
-        ...     "checkpoint.keep=true", "torch_threads=2"])
-        'vae'
-        >>> setting_label({"bonus": "vae"}, ["device=cuda", "bonus=vae"])
-        'bonus=vae'
-        >>> setting_label({"bonus": "vae", "setting": "vae_zscore"}, ["bonus=vae"])
-        'vae_zscore'
-        >>> setting_label({"setting": "icm", "env": {"stochasticity": 2}}, None)
-        'icm,env.stochasticity=2'
-    """
-    setting = config.get("setting")
-    if isinstance(setting, str) and setting:
-        level = (config.get("env") or {}).get("stochasticity") or 0
-        return f"{setting},{LEVEL_KEY}={level}" if level else setting
-    kept = []
-    for override in overrides or ():
-        key = override.split("=", 1)[0].lstrip("+~")
-        section = key.split(".", 1)[0].split("/", 1)[0]
-        if key in _NOT_SETTING or section in _NOT_SETTING_SECTIONS:
-            continue
-        kept.append(override)
-    if kept:
-        return ",".join(sorted(kept))
-    return str(config.get("bonus", "default"))
-
-
 def _scalars_dir(run_dir: Path) -> Path | None:
     # The recipes name their logger folder after the algorithm (a2c, ddpg):
     # whichever single folder under logs/ holds scalars is the run's.
@@ -322,10 +243,7 @@ def _read_run(run_dir: Path) -> RunInfo:
     from omegaconf import OmegaConf
 
     config = OmegaConf.to_container(OmegaConf.load(run_dir / "config_resolved.yaml"))
-    overrides_file = run_dir / ".hydra" / "overrides.yaml"
-    overrides = None
-    if overrides_file.is_file():
-        overrides = [str(o) for o in OmegaConf.load(overrides_file)]
+    overrides = read_overrides(run_dir)
     task = (config.get("env") or {}).get("name")
     seed = config.get("seed")
     if task is None or seed is None:

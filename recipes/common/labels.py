@@ -1,0 +1,148 @@
+"""What identifies a run in a sweep: its task, its setting and its seed.
+
+The run writes them to its ``status.json`` (:func:`common.run.write_run_status`)
+and the aggregation groups runs by them (``results.aggregate``): one definition,
+light enough for the training process (no pandas).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "ENVPOOL_SUFFIX",
+    "LEVEL_KEY",
+    "read_overrides",
+    "run_labels",
+    "setting_label",
+    "task_label",
+]
+
+#: The override that names a run's noise level in its setting label.
+LEVEL_KEY = "env.stochasticity"
+# Overrides that name the run (which seed, which task, which sweep) or how it ran
+# (Hydra, threads, the device), not what was trained: they are left out of a
+# setting's label.
+_NOT_SETTING = {
+    "seed",
+    "device",
+    "env.name",
+    "env.backend",
+    "experiment",
+    "resume",
+    "resume_without_logs",
+    "torch_threads",
+}
+# Sections whose overrides change what a run reports or how it saves (they may
+# change on resume, common.run.RESUMABLE_CHANGES), not what it learns.
+_NOT_SETTING_SECTIONS = ("hydra", "logger", "eval", "checkpoint")
+
+#: What :func:`task_label` appends to the env id of a run on envpool's MiniGrid.
+ENVPOOL_SUFFIX = "@envpool"
+
+
+def task_label(config: Mapping) -> str:
+    """The task of a run: ``env.name``, with :data:`ENVPOOL_SUFFIX` on envpool.
+
+    envpool's MiniGrid is the same task with its own layout for a seed, so its
+    runs are another task here: never pooled with minigrid's runs of the env id,
+    and normalised by the oracle over envpool's layouts (the oracle table's row
+    for ``<env id>@envpool``).
+
+    Examples:
+        >>> task_label({"env": {"name": "MiniGrid-DoorKey-8x8-v0"}})
+        'MiniGrid-DoorKey-8x8-v0'
+        >>> task_label({"env": {"name": "MiniGrid-DoorKey-8x8-v0", "backend": "envpool"}})
+        'MiniGrid-DoorKey-8x8-v0@envpool'
+    """
+    env = config.get("env") or {}
+    name = str(env.get("name"))
+    return name + ENVPOOL_SUFFIX if env.get("backend") == "envpool" else name
+
+
+def setting_label(config: Mapping, overrides: Sequence[str] | None) -> str:
+    """The label of a run's setting: what tells it apart from the other runs.
+
+    The config's top-level ``setting`` when it is a non-empty string (followed by
+    ``,env.stochasticity=L`` for a run at a noise level ``L`` other than 0: the
+    same setting at another level is another point of Figure 2); else the
+    Hydra overrides minus those naming the run or how it ran (``seed``,
+    ``env.name``, ``+experiment``, ``resume``, ``resume_without_logs``,
+    ``torch_threads``, ``device``, ``hydra.*``) and those of what it reports or how
+    it saves (``logger.*``, ``eval.*``, ``checkpoint.*``), sorted and joined with
+    ``,``; else the config's ``bonus``.
+
+    Args:
+        config (Mapping): the run's resolved config.
+        overrides (Sequence[str] | None): the strings of ``.hydra/overrides.yaml``,
+            or ``None`` when the run has none.
+
+    Examples:
+        >>> setting_label({"bonus": "vae"}, ["seed=1", "intrinsic.coef=0.1",
+        ...     "bonus=vae", "+experiment=n3s4", "hydra.run.dir=x", "resume=true"])
+        'bonus=vae,intrinsic.coef=0.1'
+        >>> setting_label({"bonus": "vae"}, ["seed=1", "env.name=MiniGrid-Empty-5x5-v0"])
+        'vae'
+        >>> setting_label({"bonus": "vae"}, ["logger.backend=csv", "eval.episodes=5",
+        ...     "checkpoint.keep=true", "torch_threads=2"])
+        'vae'
+        >>> setting_label({"bonus": "vae"}, ["device=cuda", "bonus=vae"])
+        'bonus=vae'
+        >>> setting_label({"bonus": "vae", "setting": "vae_zscore"}, ["bonus=vae"])
+        'vae_zscore'
+        >>> setting_label({"setting": "icm", "env": {"stochasticity": 2}}, None)
+        'icm,env.stochasticity=2'
+    """
+    setting = config.get("setting")
+    if isinstance(setting, str) and setting:
+        level = (config.get("env") or {}).get("stochasticity") or 0
+        return f"{setting},{LEVEL_KEY}={level}" if level else setting
+    kept = []
+    for override in overrides or ():
+        key = override.split("=", 1)[0].lstrip("+~")
+        section = key.split(".", 1)[0].split("/", 1)[0]
+        if key in _NOT_SETTING or section in _NOT_SETTING_SECTIONS:
+            continue
+        kept.append(override)
+    if kept:
+        return ",".join(sorted(kept))
+    return str(config.get("bonus", "default"))
+
+
+def read_overrides(run_dir: str | os.PathLike) -> list[str] | None:
+    """The Hydra overrides of the run in ``run_dir`` (``.hydra/overrides.yaml``),
+    or ``None`` when it has none (not started by Hydra).
+
+    Examples:
+        >>> import tempfile
+        >>> read_overrides(tempfile.mkdtemp()) is None
+        True
+    """
+    path = Path(run_dir) / ".hydra" / "overrides.yaml"
+    if not path.is_file():
+        return None
+    from omegaconf import OmegaConf
+
+    return [str(o) for o in OmegaConf.load(path)]
+
+
+def run_labels(config: Mapping, run_dir: str | os.PathLike) -> dict[str, Any]:
+    """What identifies the run in ``run_dir`` with config ``config``: its
+    ``task`` (:func:`task_label`), ``seed`` and ``setting`` (:func:`setting_label`
+    of its overrides, :func:`read_overrides`).
+
+    Examples:
+        >>> import tempfile
+        >>> config = {"env": {"name": "MiniGrid-Empty-5x5-v0", "backend": "envpool"},
+        ...           "seed": 3, "bonus": "vae"}
+        >>> run_labels(config, tempfile.mkdtemp())
+        {'task': 'MiniGrid-Empty-5x5-v0@envpool', 'seed': 3, 'setting': 'vae'}
+    """
+    return {
+        "task": task_label(config),
+        "seed": config.get("seed"),
+        "setting": setting_label(config, read_overrides(run_dir)),
+    }
