@@ -179,7 +179,9 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
     )
     frames = progress.frames
     # CPU seconds of this process (all its threads) in the loop: frames per CPU
-    # second are what a shared machine's load moves least (time/fps_cpu).
+    # second are what a shared machine's load moves least (time/fps_cpu). Not
+    # the collector's worker processes' (collector.workers > 1): there the envs
+    # step elsewhere and time/fps_cpu overstates the run's frames per CPU second.
     cpu_start = time.process_time()
     variant = cfg.intrinsic.vae.variant if cfg.bonus == "vae" else None
     logged_losses = utils.LOGGED_LOSSES[algo]
