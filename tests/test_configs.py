@@ -6,6 +6,7 @@ refused before a run starts, naming the setting by its full key and what it expe
 from __future__ import annotations
 
 import ast
+import copy
 import inspect
 import itertools
 import subprocess
@@ -14,6 +15,8 @@ from pathlib import Path
 
 import pytest
 from hydra import compose, initialize_config_dir
+from hydra._internal.config_loader_impl import ConfigLoaderImpl
+from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.errors import ConfigCompositionException
 from omegaconf import OmegaConf
 
@@ -69,6 +72,20 @@ def refusal(recipe: str, overrides: list[str]) -> str:
     pytest.fail(f"{recipe} accepted {overrides}")
 
 
+def is_group(recipe: str, key: str) -> bool:
+    """Whether a sweep key chooses a config group (``+setting``) or sets a value."""
+    return (RECIPES / recipe / key.lstrip("+~")).is_dir()
+
+
+def with_values(cfg, overrides: list[str]):
+    """``cfg`` with value overrides applied as Hydra applies them after composing
+    the defaults list (a copy: ``cfg`` is left as it was)."""
+    cfg = copy.deepcopy(cfg)
+    parsed = OverridesParser.create().parse_overrides(overrides)
+    ConfigLoaderImpl._apply_overrides_to_config(parsed, cfg)
+    return cfg
+
+
 @pytest.mark.parametrize(("recipe", "experiment"), EXPERIMENTS)
 def test_every_sweep_job_composes_and_validates(recipe, experiment):
     with initialize_config_dir(config_dir=str(RECIPES / recipe), version_base=None):
@@ -77,10 +94,19 @@ def test_every_sweep_job_composes_and_validates(recipe, experiment):
         params = {k: sweep_values(v) for k, v in sweep.hydra.sweeper.params.items()}
         assert params, f"{experiment}: no sweep"
         jobs = [dict(zip(params, job)) for job in itertools.product(*params.values())]
+        # Each choice of config groups is composed once; the values a job sets
+        # (seed, env.name, ...) go on top of it as Hydra puts them on top of the
+        # composed defaults list.
+        by_groups = {}
         for job in jobs:
-            cfg = compose(
-                "config", overrides=[*base, *(f"{k}={v}" for k, v in job.items())]
-            )
+            groups = tuple(f"{k}={v}" for k, v in job.items() if is_group(recipe, k))
+            if groups not in by_groups:
+                by_groups[groups] = compose("config", overrides=[*base, *groups])
+            values = [f"{k}={v}" for k, v in job.items() if not is_group(recipe, k)]
+            cfg = with_values(by_groups[groups], values)
+            for key, value in job.items():
+                if not is_group(recipe, key):
+                    assert str(OmegaConf.select(cfg, key)) == value, (job, key)
             OmegaConf.to_container(cfg, resolve=True)  # every interpolation resolves
             VALIDATE[recipe](cfg)
             assert cfg.experiment_name == experiment.split("/")[-1]
@@ -92,6 +118,21 @@ def test_every_sweep_job_composes_and_validates(recipe, experiment):
                 path = RECIPES / recipe / "setting" / f"{job['+setting']}.yaml"
                 text = path.read_text()
                 assert "variant:" in text, f"{path.name} must name its VAE variant"
+
+
+def test_a_jobs_values_go_on_its_composed_groups_as_hydra_puts_them():
+    # what the sweep test relies on: the same config as composing the whole job
+    overrides = ["+experiment=a2c/noise", "+setting=icm"]
+    values = ["seed=3", "env.stochasticity=2"]
+    with initialize_config_dir(config_dir=str(RECIPES / "minigrid"), version_base=None):
+        whole = compose("config", overrides=[*overrides, *values])
+        groups = compose("config", overrides=overrides)
+    assert with_values(groups, values) == whole
+    assert groups.seed != 3, "the values are applied to a copy"
+    with pytest.raises(
+        ConfigCompositionException, match="Error merging override seed=abc"
+    ):
+        with_values(groups, ["seed=abc"])
 
 
 @pytest.mark.parametrize("schema", [MiniGridConfig, DDPGConfig])
