@@ -65,6 +65,10 @@ def test_sigusr2_and_sighup_save_a_checkpoint_and_the_run_resumes(tmp_path, sig)
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        # the run starts with the signal's default action, as from a terminal,
+        # also when the tests run under nohup (which ignores SIGHUP, and an
+        # ignored SIGHUP stays ignored: the next test)
+        preexec_fn=lambda: signal.signal(sig, signal.SIG_DFL),
     )
     try:
         wait_for_checkpoint(run_dir / CHECKPOINT_NAME, min_frames=128)
