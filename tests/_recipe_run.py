@@ -4,10 +4,15 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import shutil
 import signal
 import subprocess
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
+
+from filelock import FileLock
 
 from common.run import checkpoint_info, load_checkpoint
 
@@ -65,3 +70,32 @@ def differing_logs(run_a: Path, run_b: Path) -> list[str]:
         if not ((run_a / f).exists() and (run_b / f).exists())
         or (run_a / f).read_bytes() != (run_b / f).read_bytes()
     )
+
+
+@dataclass(frozen=True)
+class SharedRun:
+    """A finished run that several tests read (and none changes): its directory
+    and what it printed."""
+
+    path: Path
+    stdout: str
+
+
+def shared_run(
+    tmp_path_factory, name: str, make: Callable[[Path], subprocess.CompletedProcess]
+) -> SharedRun:
+    """The run ``make(run_dir)`` makes, made once per test session: the pytest-xdist
+    workers share it through a lock in their common temporary folder (each worker
+    would otherwise make its own copy of a module-scoped fixture)."""
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent  # common to the workers of this session
+    run_dir = root / "shared_runs" / name
+    run_dir.parent.mkdir(parents=True, exist_ok=True)
+    done = run_dir.with_name(f"{name}.stdout")
+    with FileLock(f"{run_dir}.lock"):
+        if not done.exists():
+            if run_dir.exists():  # left by a make that failed
+                shutil.rmtree(run_dir)
+            done.write_text(make(run_dir).stdout)
+    return SharedRun(run_dir, done.read_text())
