@@ -16,6 +16,7 @@ from _recipe_run import (
     differing_logs,
     kill_after_checkpoint,
     load_recipe_utils,
+    shared_run,
     wait_for_checkpoint,
 )
 from tensordict import TensorDict
@@ -48,25 +49,54 @@ def run_recipe(run_dir: Path, *overrides: str, check: bool = True):
     return proc
 
 
+# Runs that several tests read, each made once (tests/_recipe_run.py: shared_run).
+# A VAE run checkpointed only at its end: the reference of the seed test and of the
+# restart without a checkpoint.
+VAE_RUN = [
+    "bonus=vae",
+    "collector.total_frames=384",
+    "seed=3",
+    "checkpoint.interval_frames=10000",
+]
+# An RND run: the end-to-end run of bonus=rnd and the reference of its resume test.
+RND_RUN = ["bonus=rnd", "collector.total_frames=1024"]
+
+
+@pytest.fixture(scope="module")
+def vae_run(tmp_path_factory):
+    return shared_run(tmp_path_factory, "a2c_vae", lambda d: run_recipe(d, *VAE_RUN))
+
+
+@pytest.fixture(scope="module")
+def rnd_run(tmp_path_factory):
+    return shared_run(tmp_path_factory, "a2c_rnd", lambda d: run_recipe(d, *RND_RUN))
+
+
 @pytest.mark.parametrize("bonus", ["none", "vae", "icm", "rnd"])
-def test_every_bonus_runs_end_to_end(tmp_path, bonus):
+def test_every_bonus_runs_end_to_end(tmp_path, request, bonus):
     run_dir = tmp_path / bonus
     # the VAE run also keeps its periodic checkpoints (points of training)
     keep = ["checkpoint.keep=true"] if bonus == "vae" else []
-    proc = run_recipe(run_dir, f"bonus={bonus}", "collector.total_frames=512", *keep)
-    assert "Learning curve:" in proc.stdout
+    frames = 1024 if bonus == "rnd" else 512
+    if bonus == "rnd":
+        shared = request.getfixturevalue("rnd_run")
+        run_dir, stdout = shared.path, shared.stdout
+    else:
+        total = f"collector.total_frames={frames}"
+        stdout = run_recipe(run_dir, f"bonus={bonus}", total, *keep).stdout
+    assert "Learning curve:" in stdout
     assert (run_dir / "learning_curve.png").stat().st_size > 0
     assert (run_dir / "config_resolved.yaml").exists()
     scalars = run_dir / "logs" / "a2c" / "scalars"
     steps, fps = read_scalar_csv(scalars / "time" / "fps.csv")
-    assert steps[-1] == 512 and (fps > 0).all()
+    assert steps[-1] == frames and (fps > 0).all()
     assert (scalars / "eval" / "episode_return.csv").exists()
     if bonus != "none":
         _, raw = read_scalar_csv(scalars / "train" / "intrinsic_reward.csv")
         assert torch.isfinite(torch.as_tensor(raw)).all()
         assert list((scalars / "bonus").iterdir()), "bonus-model losses are logged"
     ckpt = load_checkpoint(run_dir / "checkpoint.torchrl")
-    assert ckpt["frames"] == 512
+    assert ckpt["frames"] == frames
     kept = sorted((run_dir / "checkpoints").glob("*.torchrl")) if keep else []
     if keep:
         # one per checkpoint.interval_frames (128), each at its own frame count
@@ -131,16 +161,14 @@ def test_transfer_starts_the_bonus_model_from_another_run(tmp_path):
     assert proc.returncode != 0 and "bonus='vae'" in proc.stderr
 
 
-def test_same_seed_same_curve(tmp_path):
-    args = ["bonus=vae", "collector.total_frames=384", "seed=3"]
-    run_recipe(tmp_path / "a", *args)
-    run_recipe(tmp_path / "b", *args)
-    run_recipe(tmp_path / "c", *args[:-1], "seed=4")
+def test_same_seed_same_curve(tmp_path, vae_run):
+    run_recipe(tmp_path / "b", *VAE_RUN)
+    other_seed = [a for a in VAE_RUN if not a.startswith("seed=")]
+    run_recipe(tmp_path / "c", *other_seed, "seed=4")
+    runs = {"a": vae_run.path, "b": tmp_path / "b", "c": tmp_path / "c"}
     losses = {}
-    for name in "abc":
-        path = (
-            tmp_path / name / "logs" / "a2c" / "scalars" / "train" / "loss_critic.csv"
-        )
+    for name, run in runs.items():
+        path = run / "logs" / "a2c" / "scalars" / "train" / "loss_critic.csv"
         losses[name] = read_scalar_csv(path)[1]
     assert (losses["a"] == losses["b"]).all()
     assert not (losses["a"] == losses["c"]).all()
@@ -190,14 +218,18 @@ def test_normalized_advantages_change_the_policy_term_only(tmp_path):
     ids=["vae-inverse-noise-every3", "rnd"],
 )
 def test_killed_and_resumed_run_logs_what_the_uninterrupted_run_logs(
-    tmp_path, overrides
+    tmp_path, request, overrides
 ):
     total = "collector.total_frames=1024"
-    run_recipe(tmp_path / "whole", *overrides, total)
+    if [*overrides, total] == RND_RUN:
+        whole = request.getfixturevalue("rnd_run").path
+    else:
+        whole = tmp_path / "whole"
+        run_recipe(whole, *overrides, total)
     if "intrinsic.update_every=3" in overrides:
         # the VAE trains (and logs its losses) after rollouts 0, 3, 6, ... only
         steps, _ = read_scalar_csv(
-            tmp_path / "whole" / "logs/a2c/scalars/bonus/loss_reconstruction.csv"
+            whole / "logs/a2c/scalars/bonus/loss_reconstruction.csv"
         )
         rollouts = [int(s) // 32 - 1 for s in steps]  # TINY: 4 envs x 8 frames
         assert rollouts == list(range(0, 1024 // 32, 3))
@@ -208,24 +240,18 @@ def test_killed_and_resumed_run_logs_what_the_uninterrupted_run_logs(
     )
     assert 256 <= killed["frames"] < 1024, "the kill must land mid-run"
     run_recipe(killed_dir, *overrides, total)
-    assert differing_logs(tmp_path / "whole", killed_dir) == []
+    assert differing_logs(whole, killed_dir) == []
 
 
 def test_a_run_killed_before_its_first_checkpoint_restarts_without_its_old_rows(
-    tmp_path,
+    tmp_path, vae_run
 ):
     # killed before any checkpoint: logs on disk, no checkpoint
-    args = [
-        "bonus=vae",
-        "collector.total_frames=384",
-        "checkpoint.interval_frames=10000",
-    ]
-    run_recipe(tmp_path / "whole", *args)
     killed_dir = tmp_path / "killed"
-    run_recipe(killed_dir, *args)
+    run_recipe(killed_dir, *VAE_RUN)
     (killed_dir / "checkpoint.torchrl").unlink()
-    run_recipe(killed_dir, *args)
-    assert differing_logs(tmp_path / "whole", killed_dir) == []
+    run_recipe(killed_dir, *VAE_RUN)
+    assert differing_logs(vae_run.path, killed_dir) == []
 
 
 def test_sigint_and_sigterm_save_a_checkpoint_and_exit_cleanly(tmp_path):
