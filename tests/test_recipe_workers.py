@@ -13,7 +13,12 @@ from pathlib import Path
 
 import pytest
 import torch
-from _recipe_run import differing_logs, kill_after_checkpoint, wait_for_checkpoint
+from _recipe_run import (
+    differing_logs,
+    kill_after_checkpoint,
+    shared_run,
+    wait_for_checkpoint,
+)
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
@@ -57,9 +62,8 @@ def run_recipe(recipe: Path, run_dir: Path, *overrides: str, check: bool = True)
 @pytest.fixture(scope="module")
 def a2c_run(tmp_path_factory) -> Path:
     """One uninterrupted A2C run with two workers: the reference of the tests."""
-    run_dir = tmp_path_factory.mktemp("workers") / "whole"
-    run_recipe(A2C, run_dir, *RUN)
-    return run_dir
+    make = lambda run_dir: run_recipe(A2C, run_dir, *RUN)  # noqa: E731
+    return shared_run(tmp_path_factory, "workers_a2c", make).path
 
 
 def test_a2c_with_two_workers_learns_from_every_batch(a2c_run):
