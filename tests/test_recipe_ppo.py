@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from _recipe_run import differing_logs, kill_after_checkpoint
+from _recipe_run import differing_logs, kill_after_checkpoint, shared_run
 
 from common.run import load_checkpoint, read_scalar_csv
 
@@ -46,9 +46,8 @@ def run_recipe(run_dir: Path, *overrides: str, check: bool = True):
 @pytest.fixture(scope="module")
 def vae_run(tmp_path_factory) -> Path:
     """One uninterrupted run, the reference of the seed and resume tests."""
-    run_dir = tmp_path_factory.mktemp("ppo") / "whole"
-    run_recipe(run_dir, *VAE_RUN)
-    return run_dir
+    make = lambda run_dir: run_recipe(run_dir, *VAE_RUN)  # noqa: E731
+    return shared_run(tmp_path_factory, "ppo_vae", make).path
 
 
 @pytest.mark.parametrize("bonus", ["none", "vae", "icm", "rnd", "e3b", "noveld"])
