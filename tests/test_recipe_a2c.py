@@ -28,6 +28,8 @@ RECIPES = Path(__file__).resolve().parents[1] / "recipes"
 MAIN = RECIPES / "minigrid" / "main.py"
 AGGREGATE = RECIPES / "results" / "aggregate.py"
 TINY = [
+    # minigrid's envs (the PPO recipe's tests run on envpool, the default)
+    "env.backend=gymnasium",
     "env.name=MiniGrid-MultiRoom-N3-S4-v0",
     "env.num_envs=4",
     "collector.frames_per_env=8",
