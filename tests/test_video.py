@@ -87,8 +87,9 @@ def test_a_gif_holds_every_frame_of_a_real_minigrid_episode(tmp_path):
 
 
 def test_the_video_env_gives_the_policy_the_training_envs_observations():
-    # with the noisy TV on: the recipe's transforms are the video env's
-    cfg = minigrid_config("env.stochasticity=2")
+    # with the noisy TV on: the recipe's transforms are the video env's; on
+    # minigrid's envs, whose layouts the video env draws (envpool's: the next test)
+    cfg = minigrid_config("env.stochasticity=2", "env.backend=gymnasium")
     train = make_env(cfg, 1, seed=SEED)
     video_env = make_minigrid_video_env(TASK, SEED, like=train)
     assert video_env.observation_spec == train.observation_spec
