@@ -238,9 +238,32 @@ class EllipticalEpisodicMemory(EpisodicMemory):
         in_last = (episode == last[:, None]).unsqueeze(-1)
         last_continues = (last == 0)[:, None, None]
         u = torch.where(last_continues, inv_phi, fresh_phi) * in_last
-        start = torch.where(last_continues, inv, self._fresh((), phi.device))
-        inv = start - u.transpose(1, 2) @ torch.cholesky_solve(u, factor)
+        # inv - u^T M^-1 u where the last episode continues the memory, I / ridge
+        # - u^T M^-1 u where it starts afresh: in place, through a product buffer
+        # kept between calls (the memory is envs x dim^2 float64, 128 MiB for E3B's
+        # 16 x 1024^2; a new one a call would cost more than the products).
+        prod = self._product_buffer(inv)
+        torch.matmul(u.transpose(1, 2), torch.cholesky_solve(u, factor), out=prod)
+        fresh = ~last_continues.view(-1)
+        inv = inv.sub_(prod)
+        if fresh.any():
+            inv[fresh] = self._fresh((), phi.device) - prod[fresh]
         return bonus, inv
+
+    def _product_buffer(self, inv: torch.Tensor) -> torch.Tensor:
+        """A buffer of ``inv``'s shape for the memory's update (not saved, not
+        copied with the module)."""
+        buffer = self.__dict__.get("_product")
+        if buffer is None or buffer.shape != inv.shape or buffer.device != inv.device:
+            buffer = torch.empty_like(inv)
+            self.__dict__["_product"] = buffer
+        return buffer
+
+    def __getstate__(self):
+        state = super().__getstate__()
+        state = dict(state)
+        state.pop("_product", None)
+        return state
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
         # The memory takes the shape of the envs it follows.
