@@ -527,6 +527,43 @@ def test_documented_results_show_each_setting_once_at_the_runs_noise_level(tmp_p
     assert documented_results(task, 500_000, tmp_path, stochasticity=3) == []
 
 
+def test_a_run_on_envpool_is_shown_envpools_results_then_minigrids(tmp_path):
+    from common.minigrid import documented_results_message
+
+    task = "MiniGrid-MultiRoom-N3-S4-v0"
+    header = (
+        "task,setting,budget,seeds,train_return_iqm,train_return_ci_low,"
+        "train_return_ci_high,train_success_iqm\n"
+    )
+    for name, label, value in [("n3s4", task, 0.91), ("pool", f"{task}@envpool", 0.93)]:
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "summary.csv").write_text(
+            header + f"{label},vae_elliptical,500000,5,{value},0,1,1\n"
+        )
+    on_envpool = documented_results_message(
+        f"{task}@envpool", 500_000, tmp_path, "a2c_minigrid"
+    )
+    # no runs_meta.csv: no experiment is the recipe's own
+    assert on_envpool == ""
+    for name in ("n3s4", "pool"):
+        (tmp_path / name / "runs_meta.csv").write_text(
+            f'run_dir\n"runs/a2c_minigrid/{name}/+setting=vae_elliptical,seed=0"\n'
+        )
+    lines = documented_results_message(
+        f"{task}@envpool", 500_000, tmp_path, "a2c_minigrid"
+    ).splitlines()
+    assert lines[0].startswith(f"Measured on {task} (envpool's envs)")
+    assert "recipes/minigrid/setting/<label>.yaml" in lines[0]
+    assert "0.93" in lines[1] and "(pool)" in lines[1]
+    assert lines[2].startswith(f"Measured on {task} (minigrid's envs)")
+    assert "0.91" in lines[3] and "(n3s4)" in lines[3]
+    # a run on minigrid's envs is shown minigrid's results only
+    lines = documented_results_message(
+        task, 500_000, tmp_path, "a2c_minigrid"
+    ).splitlines()
+    assert len(lines) == 2 and "(minigrid's envs)" in lines[0] and "(n3s4)" in lines[1]
+
+
 def test_all_regenerates_every_experiment_of_a_results_dir(sweep, tmp_path):
     import shutil
 

@@ -556,20 +556,35 @@ def documented_results_message(
     """The lines of :func:`documented_results` under a header, for a recipe's final
     message; ``""`` when nothing was measured at that budget.
 
+    ``task`` is the run's task label (:func:`common.labels.task_label`): a run on
+    envpool is shown the results measured on envpool's layouts, then, under their
+    own header, those on minigrid's envs of the same env id.
+
     Examples:
         >>> documented_results_message("MiniGrid-DoorKey-5x5-v0", 123, ".", "a2c_minigrid")
         ''
     """
-    measured = documented_results(
-        task, frames, results_dir, recipe=recipe, stochasticity=stochasticity
-    )
-    if not measured:
-        return ""
-    return (
-        f"Measured on {task} at {frames} frames (docs/results, the oracle's "
-        f"return = 1; each label is recipes/{recipe}/setting/<label>.yaml, "
-        "vae = the paper's KL):\n" + "\n".join(measured)
-    )
+    from common.labels import ENVPOOL_SUFFIX
+
+    where = "recipes/minigrid/setting/<label>.yaml"
+    blocks = []
+    tasks = [task]
+    if task.endswith(ENVPOOL_SUFFIX):
+        tasks.append(task.removesuffix(ENVPOOL_SUFFIX))
+    for shown in tasks:
+        measured = documented_results(
+            shown, frames, results_dir, recipe=recipe, stochasticity=stochasticity
+        )
+        if not measured:
+            continue
+        env_id = shown.removesuffix(ENVPOOL_SUFFIX)
+        backend = "envpool's" if shown.endswith(ENVPOOL_SUFFIX) else "minigrid's"
+        blocks.append(
+            f"Measured on {env_id} ({backend} envs) at {frames} frames (docs/results, "
+            f"the oracle's return = 1; each label is {where}, vae = the paper's "
+            "KL):\n" + "\n".join(measured)
+        )
+    return "\n".join(blocks)
 
 
 def documented_results(

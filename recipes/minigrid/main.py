@@ -45,6 +45,7 @@ import utils  # the learners beside this script
 
 import common
 from common.config import validate_minigrid
+from common.labels import task_label
 from common.minigrid import (
     bonus_update_steps,
     documented_results_message,
@@ -303,7 +304,7 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         )
         print(f"Video: {video}")
     measured = documented_results_message(
-        cfg.env.name,
+        task_label(cfg),
         cfg.collector.total_frames,
         Path(__file__).resolve().parents[2] / "docs" / "results",
         f"{algo}_minigrid",
