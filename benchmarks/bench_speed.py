@@ -44,6 +44,13 @@ average is recorded with each measurement.
    ``time/fps_cpu``) over a raw gymnasium loop of one MultiRoom-N3S4 env in
    steps per CPU second; goals A2C 1.0, PPO 0.75 (3x the ratios at commit
    6453210, 0.32 and 0.24).
+8. More envs a step: item 7's ratio on envpool for the shapes with 64 envs that
+   the ``*_envpool_64envs`` and ``*_64x2`` experiments measure for learning
+   (A2C 64 x 8 and 64 x 2 frames a batch; PPO 64 x 32 with minibatches of 512
+   and of 256) beside each learner's defaults (16 envs), and the env pipeline
+   with 64 envs on envpool over the raw loop (DoorKey-8x8, MultiRoom-N3S4).
+   Whether a shape pays is read with its learning results (``docs/speed.rst``,
+   "More envs a step"): a shape that takes more frames to learn buys no time.
 
 Recipes and the peer run as subprocesses (their start-up is not timed: the recipes
 time their own training loop, the peer is timed the same way). Usage::
@@ -114,6 +121,22 @@ RECIPE_AT_6453210 = {"a2c": 0.32, "ppo": 0.24}
 RECIPE_BACKENDS = ("envpool", "gymnasium")
 # item 3's goal: the A2C recipe with bonus=none over torch-ac
 PEER_GOAL = 2.0
+# item 8: shapes with more envs a step (overrides of the envpool run), by learner
+SHAPES = {
+    "a2c": {
+        "64 x 8": ["env.num_envs=64"],
+        "64 x 2": ["env.num_envs=64", "collector.frames_per_env=2"],
+    },
+    "ppo": {
+        "64 x 32, minibatch 512": [
+            "env.num_envs=64",
+            "collector.frames_per_env=32",
+            "loss.minibatch_size=512",
+        ],
+        "64 x 32, minibatch 256": ["env.num_envs=64", "collector.frames_per_env=32"],
+    },
+}
+SHAPE_PIPELINE_ENVS = 64
 
 __all__ = ["main"]
 
@@ -699,7 +722,9 @@ def machine() -> dict:
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="a fast smoke run")
-    parser.add_argument("--items", type=int, nargs="+", default=[1, 2, 3, 4, 5, 6, 7])
+    parser.add_argument(
+        "--items", type=int, nargs="+", default=[1, 2, 3, 4, 5, 6, 7, 8]
+    )
     parser.add_argument("--rounds", type=int, help="interleaved rounds per ratio")
     parser.add_argument("--peer-threads", type=int, default=1)
     parser.add_argument("--out", help="output path prefix (.json and .txt added)")
@@ -1085,6 +1110,80 @@ def main(argv: list[str] | None = None) -> dict:
                             goal,
                             note=f"{med(samples[name]):,.0f} / {raw:,.0f}; "
                             f"6453210: {RECIPE_AT_6453210[algo]:.2f}x",
+                        )
+                    )
+
+        if 8 in args.items:
+            print(
+                "[8] more envs a step: the learners (envpool) and the env pipeline "
+                "vs a raw gymnasium loop of one env, per CPU second",
+                flush=True,
+            )
+            torch.set_num_threads(1)
+            setups = {"raw gymnasium": lambda: raw_env(RECIPE_TASK, plan.env_steps)}
+            for algo, shapes in SHAPES.items():
+                for shape, overrides in {"16 (defaults)": [], **shapes}.items():
+                    setups[f"{algo}, {shape}"] = lambda a=algo, o=overrides: a2c_recipe(
+                        "vae",
+                        None,
+                        plan.recipe_frames,
+                        tmp,
+                        extra=["env.backend=envpool", *o],
+                        algo=a,
+                        metric="time/fps_cpu",
+                    )
+            samples = interleave(setups, plan.rounds)
+            details["shapes"] = {
+                k: {"per_cpu_s": [s.value for s in v], "load1": [s.load1 for s in v]}
+                for k, v in samples.items()
+            }
+            raw = med(samples["raw gymnasium"])
+            for algo, shapes in SHAPES.items():
+                default = f"{algo}, 16 (defaults)"
+                for shape in ["16 (defaults)", *shapes]:
+                    name = f"{algo}, {shape}"
+                    note = f"{med(samples[name]):,.0f} / {raw:,.0f}"
+                    if shape in shapes:
+                        ratio = paired_ratio(samples, name, default)
+                        note += f"; {ratio:.2f}x the defaults"
+                    targets.append(
+                        Target(
+                            8,
+                            f"{algo.upper()} {shape} (envpool) / raw loop",
+                            paired_ratio(samples, name, "raw gymnasium"),
+                            RECIPE_GOALS[algo],
+                            note=note,
+                        )
+                    )
+            details["shape_pipelines"] = {}
+            for env_name in MINIGRID_PIPELINE_ENVS:
+                setups = {
+                    "raw gymnasium": lambda e=env_name: raw_env(e, plan.env_steps),
+                    **{
+                        f"envpool, {n} envs": lambda e=env_name, n=n: ours_env(
+                            lambda: make_minigrid_env(
+                                e, num_envs=n, seed=0, backend="envpool", num_threads=1
+                            ),
+                            4 * plan.env_steps,
+                        )
+                        for n in (A2C_NUM_ENVS, SHAPE_PIPELINE_ENVS)
+                    },
+                }
+                samples = interleave(setups, plan.rounds + 2)
+                details["shape_pipelines"][env_name] = {
+                    k: [s.value for s in v] for k, v in samples.items()
+                }
+                for n in (A2C_NUM_ENVS, SHAPE_PIPELINE_ENVS):
+                    name = f"envpool, {n} envs"
+                    targets.append(
+                        Target(
+                            8,
+                            f"make_minigrid_env({n}, envpool) / raw, "
+                            f"{env_name.removeprefix('MiniGrid-')}",
+                            paired_ratio(samples, name, "raw gymnasium"),
+                            ENVPOOL_PIPELINE_GOAL,
+                            note=f"{med(samples[name]):,.0f} / "
+                            f"{med(samples['raw gymnasium']):,.0f} steps/CPU-s",
                         )
                     )
 
