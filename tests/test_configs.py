@@ -314,7 +314,7 @@ def test_a_bad_value_is_refused_naming_its_setting(run, override):
                 ),
                 # rules between settings
                 (
-                    "collector.workers=3",
+                    "env.num_envs=16 collector.workers=3",
                     "env.num_envs (16) must be a multiple of collector.workers (3)",
                 ),
                 (

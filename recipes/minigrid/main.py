@@ -4,7 +4,7 @@
 Every update, in this order:
 
 1. the collector gathers ``frames_per_env`` steps from each of ``num_envs`` envs
-   (A2C: 16 x 8 = 128 transitions, the set D of Algorithm 1; PPO: 16 x 128 =
+   (A2C: 16 x 8 = 128 transitions, the set D of Algorithm 1; PPO: 64 x 32 =
    2,048), in this process or split over ``collector.workers`` processes;
 2. the bonus of every transition is computed in one batched pass with the bonus
    model as it was during the rollout, and mixed, ``r = r_ext + coef *
