@@ -24,6 +24,7 @@ from torchrl.modules import ActorValueOperator, ProbabilisticActor, ValueOperato
 from torchrl.objectives.rnd import RNDLoss
 from torchrl.objectives.value import GAE
 
+from common.labels import ENVPOOL_SUFFIX
 from torchrl_surprise import (
     E3BModel,
     E3BTransform,
@@ -564,8 +565,6 @@ def documented_results_message(
         >>> documented_results_message("MiniGrid-DoorKey-5x5-v0", 123, ".", "a2c_minigrid")
         ''
     """
-    from common.labels import ENVPOOL_SUFFIX
-
     where = "recipes/minigrid/setting/<label>.yaml"
     blocks = []
     tasks = [task]
