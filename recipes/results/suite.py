@@ -1,0 +1,441 @@
+"""The hard-exploration suite's table: every task and setting, the issue's targets,
+and the peers' published numbers beside ours.
+
+Each task of the suite is an experiment aggregated on its own, at its own budget
+(``recipes/results/aggregate.py runs/ppo_minigrid/suite_<task> --out
+docs/results/suite_<task> --budget <its budget>``). This command reads those
+experiments' ``summary.csv`` and ``probability_of_improvement.csv`` and a table of
+published numbers, and writes the suite's tables::
+
+    python recipes/results/suite.py docs/results/suite_keycorridor_s3r3 \\
+        docs/results/suite_doorkey16x16 --published docs/results/suite_published.csv \\
+        --out docs/results/suite
+
+**Score.** A run's score is its final train return divided by the oracle's where
+the task has an oracle (every task of the suite has one), else its final success
+rate; a setting's score is the IQM over seeds with its 95% bootstrap CI (as
+``aggregate.py`` computes them). A setting **solves** a task when its IQM is at
+least 0.9 of the oracle's return (a success rate of 0.95 without an oracle);
+its frames to solve are the median over seeds of the frames at which each seed's
+moving return first reached 0.9 of the oracle's.
+
+**Outputs** (in ``--out``):
+
+- ``table.csv``: one row per task and setting: ``task, setting, budget, seeds``
+  (those that reached the budget, in the score), ``metric, iqm, ci_low, ci_high,
+  solved, seeds_reaching, seeds_logged, median_frames_to_solve`` (over every
+  seed that logged, as ``aggregate.py``'s report counts them).
+- ``wide.csv``: the table a report shows: a row per task, a column per setting
+  holding ``IQM [CI] (seeds)``, and ``published``: the peers' published numbers
+  for that task, each with its method, learner and budget.
+- ``frames_to_solve.csv``: the same shape, the median frames to 0.9 of the
+  oracle's return with the seeds that reached it.
+- ``targets.csv``: per task, the issue's targets: the best VAE-based setting (a
+  setting whose name starts with ``vae``; the highest IQM, so chosen on the data
+  it is judged on), whether it solves the task, and against E3B and NovelD the
+  probability that it is better (from the task's
+  ``probability_of_improvement.csv``) with a verdict: ``better`` (the CI above
+  0.5), ``worse`` (below), ``level`` (the CI holds 0.5) or ``too few seeds``
+  (either side under :data:`MIN_SEEDS`).
+- ``published.csv``: the published numbers, checked, as given.
+
+The published table has the columns of :data:`PUBLISHED_COLUMNS`; ``task`` is
+the env id without ``MiniGrid-`` and its version (``KeyCorridorS3R3``), as in
+``wide.csv``; ``budget_frames`` is a number or ``not stated``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import pandas as pd
+
+#: The settings that are the library's VAE-based bonuses: names starting with it.
+VAE_PREFIX = "vae"
+#: The peers every VAE-based setting is judged against.
+PEERS: tuple[str, ...] = ("e3b", "noveld")
+#: The plain learner.
+PLAIN = "none"
+#: Fraction of the oracle's return (or success rate without an oracle) that solves.
+SOLVED_RETURN, SOLVED_SUCCESS = 0.9, 0.95
+#: Seeds each side needs before ``targets.csv`` says better, level or worse.
+MIN_SEEDS = 3
+PUBLISHED_COLUMNS: tuple[str, ...] = (
+    "task",
+    "method",
+    "learner",
+    "metric",
+    "value",
+    "budget_frames",
+    "seeds",
+    "source",
+)
+
+
+class SuiteInputError(ValueError):
+    """An experiment directory or the published table lacks what the suite needs."""
+
+
+def short_task(task: str) -> str:
+    """The env id as the suite's tables name it: without ``MiniGrid-``, its
+    version and its backend.
+
+    Examples:
+        >>> short_task("MiniGrid-KeyCorridorS3R3-v0@envpool")
+        'KeyCorridorS3R3'
+        >>> short_task("MiniGrid-ObstructedMaze-2Dlhb-v1")
+        'ObstructedMaze-2Dlhb'
+    """
+    name = task.split("@", 1)[0].removeprefix("MiniGrid-")
+    head, _, version = name.rpartition("-v")
+    return head if head and version.isdigit() else name
+
+
+def _read_csv(path: Path, needed: Sequence[str]) -> pd.DataFrame:
+    if not path.is_file():
+        raise SuiteInputError(
+            f"{path} is missing: each suite experiment is a directory written by "
+            "recipes/results/aggregate.py (summary.csv, probability_of_improvement.csv)"
+        )
+    # Labels such as "none" are settings, not missing values.
+    table = pd.read_csv(path, keep_default_na=False, na_values=[""])
+    missing = [column for column in needed if column not in table.columns]
+    if missing:
+        raise SuiteInputError(f"{path} lacks the columns {missing}; expected {needed}")
+    return table
+
+
+_SUMMARY_COLUMNS = (
+    "task",
+    "setting",
+    "normalized",
+    "budget",
+    "seeds",
+    "train_return_iqm",
+    "train_return_ci_low",
+    "train_return_ci_high",
+    "train_return_seeds",
+    "train_success_iqm",
+    "train_success_ci_low",
+    "train_success_ci_high",
+    "train_success_seeds",
+    "seeds_reaching_0.9",
+    "median_frames_to_0.9",
+)
+_POI_COLUMNS = (
+    "task",
+    "setting_x",
+    "setting_y",
+    "seeds_x",
+    "seeds_y",
+    "probability",
+    "ci_low",
+    "ci_high",
+)
+
+
+def read_experiments(
+    dirs: Sequence[str | Path],
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The summaries and probabilities of improvement of the suite's experiments.
+
+    Raises:
+        SuiteInputError: a directory lacks either file or a column, or two
+            directories hold the same task.
+    """
+    summaries, probabilities = [], []
+    dirs = [Path(directory) for directory in dirs]
+    twice = sorted({str(d) for d in dirs if dirs.count(d) > 1})
+    if twice:
+        raise SuiteInputError(f"an experiment directory is given twice: {twice}")
+    for directory in dirs:
+        summary = _read_csv(directory / "summary.csv", _SUMMARY_COLUMNS)
+        summary["experiment"] = str(directory)
+        summaries.append(summary)
+        probabilities.append(
+            _read_csv(directory / "probability_of_improvement.csv", _POI_COLUMNS)
+        )
+    if not summaries:
+        raise SuiteInputError("no experiment directory given")
+    summary = pd.concat(summaries, ignore_index=True)
+    owners = summary.groupby("task")["experiment"].unique()
+    shared = {task: list(dirs) for task, dirs in owners.items() if len(dirs) > 1}
+    if shared:
+        raise SuiteInputError(
+            f"a task must come from one experiment; these come from several: {shared}"
+        )
+    return summary, pd.concat(probabilities, ignore_index=True)
+
+
+def _is_true(value) -> bool:
+    return str(value).strip().lower() in ("true", "1")
+
+
+def suite_table(summary: pd.DataFrame) -> pd.DataFrame:
+    """One row per task and setting: the score at the budget and frames to solve.
+
+    Examples:
+        >>> row = {"task": "MiniGrid-T-v0", "setting": "vae", "normalized": True,
+        ...     "budget": 1000, "seeds": 5, "train_return_iqm": 0.95,
+        ...     "train_return_ci_low": 0.9, "train_return_ci_high": 0.97,
+        ...     "train_return_seeds": 5, "seeds_reaching_0.9": 4,
+        ...     "median_frames_to_0.9": "700"}
+        >>> suite_table(pd.DataFrame([row]))[["task", "iqm", "solved"]]
+          task   iqm  solved
+        0    T  0.95    True
+    """
+    rows = []
+    for _, row in summary.iterrows():
+        normalized = _is_true(row["normalized"])
+        name = "train_return" if normalized else "train_success"
+        iqm = pd.to_numeric(row[f"{name}_iqm"], errors="coerce")
+        frames = pd.to_numeric(row.get("median_frames_to_0.9"), errors="coerce")
+        seeds = pd.to_numeric(row.get(f"{name}_seeds"), errors="coerce")
+        rows.append(
+            {
+                "task": short_task(row["task"]),
+                "setting": row["setting"],
+                "budget": int(row["budget"]),
+                # the runs that reached the budget (those in the score)
+                "seeds": 0 if pd.isna(seeds) else int(seeds),
+                "metric": "return / oracle" if normalized else "success",
+                "iqm": iqm,
+                "ci_low": pd.to_numeric(row[f"{name}_ci_low"], errors="coerce"),
+                "ci_high": pd.to_numeric(row[f"{name}_ci_high"], errors="coerce"),
+                "solved": bool(
+                    not pd.isna(iqm)
+                    and iqm >= (SOLVED_RETURN if normalized else SOLVED_SUCCESS)
+                ),
+                "seeds_reaching": (
+                    int(row["seeds_reaching_0.9"]) if normalized else pd.NA
+                ),
+                # the seeds counted for frames to solve: every seed that logged
+                # (aggregate.py's report counts them so)
+                "seeds_logged": int(row["seeds"]),
+                "median_frames_to_solve": (
+                    int(frames) if normalized and not pd.isna(frames) else pd.NA
+                ),
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def read_published(path: str | Path) -> pd.DataFrame:
+    """The published numbers, checked: every column of :data:`PUBLISHED_COLUMNS`,
+    a source on every row, and a numeric value.
+
+    Raises:
+        SuiteInputError: naming the file, the row and what it lacks.
+    """
+    path = Path(path)
+    table = _read_csv(path, PUBLISHED_COLUMNS)
+    for index, row in table.iterrows():
+        line = index + 2  # the header is line 1
+        if pd.isna(row["source"]) or not str(row["source"]).strip():
+            raise SuiteInputError(
+                f"{path}, line {line}: a published number needs a source"
+            )
+        if pd.isna(pd.to_numeric(row["value"], errors="coerce")):
+            raise SuiteInputError(
+                f"{path}, line {line}: value {row['value']!r} is not a number"
+            )
+        budget = str(row["budget_frames"]).strip()
+        if budget != "not stated" and not budget.isdigit():
+            raise SuiteInputError(
+                f"{path}, line {line}: budget_frames {budget!r} is neither a frame "
+                "count nor 'not stated'"
+            )
+    return table
+
+
+def _frames(frames) -> str:
+    if pd.isna(frames):
+        return "not stated"
+    frames = int(frames)
+    if frames >= 1_000_000:
+        return f"{frames / 1e6:.2f}".rstrip("0").rstrip(".") + "M"
+    return f"{frames / 1000:.0f}k"
+
+
+def _published_cell(rows: pd.DataFrame) -> str:
+    cells = []
+    for _, row in rows.iterrows():
+        budget = str(row["budget_frames"]).strip()
+        budget = budget if budget == "not stated" else _frames(budget)
+        cells.append(
+            f"{row['method']} {float(row['value']):.2f} {row['metric']} "
+            f"({row['learner']}, {budget})"
+        )
+    return "; ".join(cells)
+
+
+def _order(settings: Sequence[str]) -> list[str]:
+    """The plain learner first, then the peers, then the rest alphabetically."""
+    first = [s for s in (PLAIN, *PEERS) if s in settings]
+    return first + sorted(s for s in settings if s not in first)
+
+
+def wide_tables(
+    table: pd.DataFrame, published: pd.DataFrame | None = None
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The report's two tables: scores and frames to solve, a row per task."""
+    settings = _order(table["setting"].unique())
+    scores, frames = [], []
+    for task, rows in table.groupby("task", sort=False):
+        rows = rows.set_index("setting")
+        budget = _frames(rows["budget"].iloc[0])
+        score = {"task": task, "budget": budget}
+        solve = {"task": task, "budget": budget}
+        for setting in settings:
+            if setting not in rows.index:
+                score[setting] = solve[setting] = ""
+                continue
+            row = rows.loc[setting]
+            score[setting] = (
+                f"{row['iqm']:.2f} [{row['ci_low']:.2f}, {row['ci_high']:.2f}] "
+                f"({row['seeds']})"
+                if not pd.isna(row["iqm"])
+                else "no finished seed"
+            )
+            if pd.isna(row["seeds_reaching"]) or not row["seeds_logged"]:
+                solve[setting] = ""
+            elif pd.isna(row["median_frames_to_solve"]):
+                solve[setting] = f"not reached (0/{row['seeds_logged']})"
+            else:
+                solve[setting] = (
+                    f"{_frames(row['median_frames_to_solve'])} "
+                    f"({row['seeds_reaching']}/{row['seeds_logged']})"
+                )
+        if published is not None:
+            score["published"] = _published_cell(published[published["task"] == task])
+        scores.append(score)
+        frames.append(solve)
+    return pd.DataFrame(scores), pd.DataFrame(frames)
+
+
+def _verdict(poi: pd.DataFrame, task: str, best: str, peer: str) -> dict:
+    rows = poi[
+        (poi["task"] == task) & (poi["setting_x"] == best) & (poi["setting_y"] == peer)
+    ]
+    if rows.empty:
+        return {"probability": pd.NA, "ci": "", "verdict": "not run"}
+    row = rows.iloc[0]
+    ci = f"[{row['ci_low']:.2f}, {row['ci_high']:.2f}]"
+    if min(int(row["seeds_x"]), int(row["seeds_y"])) < MIN_SEEDS:
+        verdict = f"too few seeds ({int(row['seeds_x'])} vs {int(row['seeds_y'])})"
+    elif row["ci_low"] > 0.5:
+        verdict = "better"
+    elif row["ci_high"] < 0.5:
+        verdict = "worse"
+    else:
+        verdict = "level"
+    return {
+        "probability": round(float(row["probability"]), 2),
+        "ci": ci,
+        "verdict": verdict,
+    }
+
+
+def targets(table: pd.DataFrame, probabilities: pd.DataFrame) -> pd.DataFrame:
+    """Per task: the plain learner, the best VAE-based setting, whether it solves
+    the task, and how it compares with each peer (see the module's description)."""
+    poi = probabilities.assign(task=probabilities["task"].map(short_task))
+    rows = []
+    for task, rows_of_task in table.groupby("task", sort=False):
+        scored = rows_of_task.dropna(subset=["iqm"]).set_index("setting")
+        vae = scored[scored.index.str.startswith(VAE_PREFIX)]
+        out = {
+            "task": task,
+            "plain": _score(scored, PLAIN),
+            "best_vae": vae["iqm"].idxmax() if len(vae) else "",
+        }
+        best = out["best_vae"]
+        out["best_vae_score"] = _score(scored, best) if best else ""
+        out["best_vae_solves"] = bool(best) and bool(scored.loc[best, "solved"])
+        for peer in PEERS:
+            out[peer] = _score(scored, peer)
+            verdict = (
+                _verdict(poi, task, best, peer)
+                if best and peer in scored.index
+                else {"probability": pd.NA, "ci": "", "verdict": "not run"}
+            )
+            out[f"vs_{peer}"] = verdict["probability"]
+            out[f"vs_{peer}_ci"] = verdict["ci"]
+            out[f"vs_{peer}_verdict"] = verdict["verdict"]
+        rows.append(out)
+    return pd.DataFrame(rows)
+
+
+def _score(scored: pd.DataFrame, setting: str) -> str:
+    if setting not in scored.index:
+        return "not run"
+    row = scored.loc[setting]
+    return (
+        f"{row['iqm']:.2f} [{row['ci_low']:.2f}, {row['ci_high']:.2f}] ({row['seeds']})"
+    )
+
+
+def write_suite(
+    dirs: Sequence[str | Path],
+    out: str | Path,
+    published: str | Path | None = None,
+) -> dict[str, Path]:
+    """Writes the suite's tables (see the module's description) into ``out``."""
+    summary, probabilities = read_experiments(dirs)
+    table = suite_table(summary)
+    published_table = read_published(published) if published else None
+    if published_table is not None:
+        unknown = sorted(set(published_table["task"]) - set(table["task"]))
+        if unknown:
+            # a task of the published table that no experiment ran: kept in
+            # published.csv, absent from wide.csv
+            print(
+                f"published numbers for tasks without runs: {unknown}", file=sys.stderr
+            )
+    scores, frames = wide_tables(table, published_table)
+    tables = {
+        "table.csv": table,
+        "wide.csv": scores,
+        "frames_to_solve.csv": frames,
+        "targets.csv": targets(table, probabilities),
+    }
+    if published_table is not None:
+        tables["published.csv"] = published_table
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {}
+    for name, frame in tables.items():
+        paths[name] = out / name
+        frame.to_csv(paths[name], index=False)
+    return paths
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python recipes/results/suite.py",
+        description=__doc__.split("\n\n", 1)[0],
+    )
+    parser.add_argument(
+        "experiments",
+        nargs="+",
+        type=Path,
+        help="the suite's experiment directories, each written by aggregate.py",
+    )
+    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument(
+        "--published", type=Path, help="the peers' published numbers (CSV)"
+    )
+    args = parser.parse_args(argv)
+    try:
+        paths = write_suite(args.experiments, args.out, args.published)
+    except SuiteInputError as error:
+        parser.error(str(error))
+    print("\n".join(f"wrote {path}" for path in paths.values()))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
