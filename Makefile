@@ -32,9 +32,12 @@ docs: $(STAMP)
 
 # Every table and figure of docs/results recomputed from the committed per-run data
 # (each experiment's runs.csv, each heatmap summary's rows per run and layout; no
-# run directory or checkpoint needed).
+# run directory or checkpoint needed), then the suite's table from its tasks'.
+SUITE_DIRS = $(filter-out %_16x128/,$(wildcard docs/results/suite_*/))
 figures: $(STAMP)
 	$(PY) recipes/results/aggregate.py --all docs/results
+	$(PY) recipes/results/suite.py $(SUITE_DIRS) \
+		--published docs/results/suite_published.csv --out docs/results/suite
 	for rows in docs/results/heatmaps/*_layouts.csv; do \
 		$(PY) recipes/results/heatmap.py --from-layouts $$rows || exit 1; \
 	done

@@ -261,14 +261,17 @@ def _frames(frames) -> str:
 
 
 def _published_cell(rows: pd.DataFrame) -> str:
+    """``method value, ... (learner, metric, budget)``, a group per source setup."""
     cells = []
-    for _, row in rows.iterrows():
-        budget = str(row["budget_frames"]).strip()
+    for (learner, metric, budget), group in rows.groupby(
+        ["learner", "metric", "budget_frames"], sort=False
+    ):
+        budget = str(budget).strip()
         budget = budget if budget == "not stated" else _frames(budget)
-        cells.append(
-            f"{row['method']} {float(row['value']):.2f} {row['metric']} "
-            f"({row['learner']}, {budget})"
+        values = ", ".join(
+            f"{row['method']} {float(row['value']):.2f}" for _, row in group.iterrows()
         )
+        cells.append(f"{values} ({learner}, {metric}, budget {budget})")
     return "; ".join(cells)
 
 
