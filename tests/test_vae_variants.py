@@ -99,11 +99,16 @@ def _elliptical_env(**kwargs):
     return TransformedEnv(base, Compose(StepCounter(max_steps=3), bonus)), bonus
 
 
-@pytest.mark.parametrize("global_bonus", ["none", "kl"])
-def test_elliptical_bonus_env_path_equals_batch_path_across_episodes(global_bonus):
-    env, bonus = _elliptical_env(global_bonus=global_bonus)
+@pytest.mark.parametrize(
+    "global_bonus, unit_latent", [("none", False), ("kl", False), ("none", True)]
+)
+def test_elliptical_bonus_env_path_equals_batch_path_across_episodes(
+    global_bonus, unit_latent
+):
+    kwargs = {"global_bonus": global_bonus, "unit_latent": unit_latent}
+    env, bonus = _elliptical_env(**kwargs)
     check_env_specs(env)
-    env, bonus = _elliptical_env(global_bonus=global_bonus)
+    env, bonus = _elliptical_env(**kwargs)
     rollout = env.rollout(10, break_when_any_done=False)
     assert rollout["next", "done"].sum() == 3
     bonus.reset_episodes()
@@ -111,6 +116,52 @@ def test_elliptical_bonus_env_path_equals_batch_path_across_episodes(global_bonu
     torch.testing.assert_close(
         recomputed["next", "intrinsic_reward"], rollout["next", "intrinsic_reward"]
     )
+
+
+def test_a_unit_latent_bonus_reads_directions_not_the_latents_scale():
+    from tensordict import TensorDict
+
+    from torchrl_surprise.transforms import VAEEllipticalTransform
+
+    torch.manual_seed(0)
+    vae = StateVAE.for_vector(3, latent_dim=4, hidden_dim=8)
+    obs = torch.randn(2, 6, 3)
+    done = torch.zeros(2, 6, 1, dtype=torch.bool)
+    done[0, 3] = True
+
+    def bonus(unit_latent: bool) -> torch.Tensor:
+        transform = VAEEllipticalTransform(
+            vae, in_keys=["observation"], ridge=0.1, unit_latent=unit_latent
+        )
+        td = TensorDict(
+            {
+                "next": {
+                    "observation": obs,
+                    "reward": torch.zeros(2, 6, 1),
+                    "done": done,
+                }
+            },
+            [2, 6],
+            names=[None, "time"],
+        )
+        return transform(td)["next", "intrinsic_reward"][..., 0]
+
+    unit, raw = bonus(True), bonus(False)
+    # an episode's first state: 1 / ridge at unit length, |mu|^2 / ridge otherwise
+    assert unit[:, 0].tolist() == pytest.approx([10.0, 10.0])
+    assert unit[0, 4].item() == pytest.approx(10.0)  # after env 0's episode ended
+    assert not torch.allclose(raw[:, 0], unit[:, 0])
+    # posterior means 5 times longer (the encoder's mean head scaled): the same
+    # unit-length bonus; the raw one 25 times larger at an episode's first state
+    # and changed everywhere (against the same ridge)
+    with torch.no_grad():
+        loc_rows = vae.head.weight.shape[0] // 2
+        vae.head.weight[:loc_rows] *= 5.0
+        vae.head.bias[:loc_rows] *= 5.0
+    torch.testing.assert_close(bonus(True), unit)
+    longer = bonus(False)
+    torch.testing.assert_close(longer[:, 0], raw[:, 0] * 25.0, rtol=1e-4, atol=0.0)
+    assert ((longer - raw).abs() > 1e-3).all()
 
 
 def test_elliptical_bonus_falls_on_repeats_and_restarts_with_the_episode():

@@ -311,6 +311,8 @@ class MiniGridVAEConfig(VAEConfig):
     """elliptical: the ridge lambda of C = lambda I + sum phi phi^T; > 0."""
     global_bonus: str = required(one_of(GLOBAL_BONUSES))
     """elliptical: none, or kl to multiply the episodic bonus by the KL."""
+    unit_latent: bool = required()
+    """elliptical: the episodic term reads the posterior mean at unit length."""
     use_direction: bool = required()
     """The VAE reads the agent's direction as well as the image."""
     inverse_weight: float = required(NON_NEGATIVE)

@@ -98,7 +98,7 @@ def vae_variant_kwargs(variant: str, vae_cfg) -> dict:
 
     Examples:
         >>> vae_variant_kwargs("elliptical", {"ridge": 0.5})
-        {'ridge': 0.5, 'global_bonus': 'none'}
+        {'ridge': 0.5, 'global_bonus': 'none', 'unit_latent': False}
         >>> vae_variant_kwargs("kl", {"ridge": 0.5})
         {}
     """
@@ -107,6 +107,7 @@ def vae_variant_kwargs(variant: str, vae_cfg) -> dict:
     return {
         "ridge": vae_cfg.get("ridge", 0.1),
         "global_bonus": vae_cfg.get("global_bonus", "none"),
+        "unit_latent": vae_cfg.get("unit_latent", False),
     }
 
 

@@ -178,7 +178,13 @@ class VAEEllipticalTransform(VAESurpriseTransform):
     "Exploration via Elliptical Episodic Bonuses", with the VAE's encoder in
     place of their inverse-dynamics embedding). ``global_bonus="kl"`` multiplies
     it by the paper's KL, the product of a global and an episodic term as in
-    NovelD and E3B's follow-ups.
+    NovelD and E3B's follow-ups. ``unit_latent=True`` takes ``phi`` as the
+    posterior mean divided by its norm: the bonus then measures how far a state's
+    direction in the latent is from the episode's so far, whatever the latent's
+    scale (at most ``1 / ridge``, reached by an episode's first state). A trained
+    VAE's posterior means are several times longer than an untrained encoder's,
+    and their bonus heavy-tailed (``docs/results.rst``, "The elliptical bonus's
+    scale"); unit length makes the two compare on what they encode alone.
 
     The bonus depends on the order of states within each episode, so the
     transform keeps one inverse matrix per env in ``memory``, an
@@ -195,6 +201,8 @@ class VAEEllipticalTransform(VAESurpriseTransform):
         vae (StateVAE): the state VAE (trained by ``VAELoss``).
         ridge (float): ``lambda`` of ``C``'s ``lambda * I`` (E3B: 0.1).
         global_bonus (str): ``"none"`` (the elliptical term alone) or ``"kl"``.
+        unit_latent (bool): ``phi`` is the posterior mean at unit length (the
+            global KL, with ``global_bonus="kl"``, reads the posterior as it is).
         done_key (NestedKey): the ``"next"`` entry that ends an episode.
         **kwargs: see :class:`VAESurpriseTransform`.
 
@@ -221,6 +229,7 @@ class VAEEllipticalTransform(VAESurpriseTransform):
         *,
         ridge: float = 0.1,
         global_bonus: str = "none",
+        unit_latent: bool = False,
         done_key: NestedKey = "done",
         **kwargs,
     ):
@@ -233,6 +242,7 @@ class VAEEllipticalTransform(VAESurpriseTransform):
         self.memory = memory
         self.ridge = memory.ridge
         self.global_bonus = global_bonus
+        self.unit_latent = bool(unit_latent)
         self.done_key = unravel_key(done_key)
 
     def reset_episodes(self) -> None:
@@ -247,6 +257,10 @@ class VAEEllipticalTransform(VAESurpriseTransform):
         observations = self._observations(next_tensordict, "the 'next' tensordict")
         return self.vae.posterior(*observations)
 
+    def _features(self, loc: torch.Tensor) -> torch.Tensor:
+        """``phi``: the posterior mean, at unit length with ``unit_latent``."""
+        return torch.nn.functional.normalize(loc, dim=-1) if self.unit_latent else loc
+
     def _with_global(self, bonus, loc, scale) -> torch.Tensor:
         bonus = bonus.to(loc.dtype)
         if self.global_bonus == "kl":
@@ -259,7 +273,8 @@ class VAEEllipticalTransform(VAESurpriseTransform):
         # The env path: one step of every env.
         done = self._episode_ends(next_tensordict, self.done_key)
         loc, scale = self._posterior(next_tensordict)
-        return self._with_global(self.memory.step(loc, done), loc, scale)
+        bonus = self.memory.step(self._features(loc), done)
+        return self._with_global(bonus, loc, scale)
 
     def _compute_batch_bonus(
         self,
@@ -270,7 +285,7 @@ class VAEEllipticalTransform(VAESurpriseTransform):
         time_dim = self._require_time_dim(time_dim)
         done = self._episode_ends(next_tensordict, self.done_key)
         loc, scale = self._posterior(next_tensordict)
-        bonus = self.memory.walk(loc, done, time_dim)
+        bonus = self.memory.walk(self._features(loc), done, time_dim)
         return self._with_global(bonus, loc, scale)
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
