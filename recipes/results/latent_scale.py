@@ -1,0 +1,175 @@
+"""The elliptical VAE bonus's scale: how long a run's posterior means are, and how
+heavy-tailed its bonus, on the episodes of a uniformly random policy.
+
+The elliptical bonus ``phi^T C^-1 phi`` (``intrinsic.vae.variant=elliptical``) is
+``|phi|^2 / ridge`` at an episode's first state and grows with the latent's scale
+elsewhere against the fixed ridge; a trained VAE and its untrained control can
+then differ in scale as much as in what they encode. For each run (its checkpoint,
+as :func:`results.heatmap.load_bonus_transform` rebuilds its transform), this
+command encodes the same episodes (``--envs`` envs of the run's task and backend,
+``--steps`` steps of a uniformly random policy, seeded ``--seed``), walks the
+episodic memory over them as a training batch does, and writes one row per run:
+
+- ``mean_sq_norm``, ``max_sq_norm``: ``|mu|^2`` of the posterior means;
+- ``first``: the mean bonus of an episode's first bonus-bearing state (the memory
+  is empty there); ``other_mean``, ``other_p99``, ``tail``: the other states'
+  mean bonus, 99th percentile and their ratio; ``first_share``: the first
+  states' share of all the bonus;
+- the same with ``unit_`` in front, for the posterior means at unit length
+  (``intrinsic.vae.unit_latent``).
+
+Usage::
+
+    python recipes/results/latent_scale.py runs/ppo_minigrid/suite_keycorridor_s3r3/+setting=vae_elliptical,seed=* \\
+        runs/ppo_minigrid/suite_keycorridor_s3r3/+setting=vae_elliptical_untrained,seed=* \\
+        --out docs/results/latent_scale/keycorridor_s3r3.csv
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import pandas as pd
+import torch
+
+from torchrl_surprise.transforms import VAEEllipticalTransform
+
+#: Columns of the output, per run.
+COLUMNS = (
+    "run",
+    "setting",
+    "seed",
+    "frames",
+    "mean_sq_norm",
+    "max_sq_norm",
+    "first",
+    "other_mean",
+    "other_p99",
+    "tail",
+    "first_share",
+    "unit_first",
+    "unit_other_mean",
+    "unit_other_p99",
+    "unit_tail",
+    "unit_first_share",
+)
+
+
+def random_episodes(env_name: str, backend: str, envs: int, steps: int, seed: int):
+    """``(image, direction, done)`` of a uniformly random policy's steps, each
+    ``[envs, steps, ...]``: the ``("next", ...)`` entries a collector's batch holds."""
+    from torchrl_surprise.envs import make_minigrid_env
+
+    env = make_minigrid_env(env_name, num_envs=envs, backend=backend)
+    env.set_seed(seed)
+    torch.manual_seed(seed)
+    rollout = env.rollout(steps, break_when_any_done=False)
+    env.close()
+    return (
+        rollout["next", "image"],
+        rollout["next", "direction"],
+        rollout["next", "done"].reshape(envs, steps),
+    )
+
+
+def bonus_stats(bonus: torch.Tensor, done: torch.Tensor) -> dict[str, float]:
+    """Scale and tail of a ``[envs, steps]`` bonus whose episodes end at ``done``.
+
+    Examples:
+        >>> bonus = torch.tensor([[10.0, 1.0, 1.0, 10.0, 1.0]])
+        >>> done = torch.tensor([[False, False, True, False, False]])
+        >>> stats = bonus_stats(bonus, done)
+        >>> stats["first"], stats["other_mean"], stats["first_share"]
+        (10.0, 1.0, 0.8696)
+    """
+    first = torch.zeros_like(done)
+    first[:, 0] = True
+    first[:, 1:] = done[:, :-1]
+    other = bonus[~first].double()
+    p99 = float(other.quantile(0.99))
+    mean = float(other.mean())
+    return {
+        "first": round(float(bonus[first].double().mean()), 4),
+        "other_mean": round(mean, 4),
+        "other_p99": round(p99, 4),
+        "tail": round(p99 / mean, 2) if mean > 0 else float("nan"),
+        "first_share": round(
+            float(bonus[first].double().sum() / bonus.double().sum()), 4
+        ),
+    }
+
+
+def run_scale(run_dir: str | Path, episodes) -> dict:
+    """One run's row of :data:`COLUMNS` on ``episodes`` (:func:`random_episodes`)."""
+    from results.heatmap import load_bonus_transform
+
+    transform, config, frames = load_bonus_transform(run_dir)
+    if not isinstance(transform, VAEEllipticalTransform):
+        raise ValueError(
+            f"{run_dir}: intrinsic.vae.variant is "
+            f"{config['intrinsic']['vae'].get('variant')!r}; the latent's scale is "
+            "measured for the elliptical bonus (variant 'elliptical')"
+        )
+    image, direction, done = episodes
+    envs, steps = done.shape
+    with torch.no_grad():
+        loc, _ = transform.vae.posterior(
+            image.reshape(envs * steps, *image.shape[2:]),
+            direction.reshape(envs * steps, *direction.shape[2:]),
+        )
+    loc = loc.reshape(envs, steps, -1)
+    row = {
+        "run": str(run_dir),
+        "setting": config.get("setting") or "",
+        "seed": config.get("seed"),
+        "frames": frames,
+        "mean_sq_norm": round(float(loc.pow(2).sum(-1).mean()), 4),
+        "max_sq_norm": round(float(loc.pow(2).sum(-1).max()), 4),
+    }
+    for prefix, phi in (
+        ("", loc),
+        ("unit_", torch.nn.functional.normalize(loc, dim=-1)),
+    ):
+        transform.memory.reset()
+        bonus = transform.memory.walk(phi, done, 1)
+        row.update({prefix + k: v for k, v in bonus_stats(bonus, done).items()})
+    return row
+
+
+def main(argv: Sequence[str] | None = None) -> pd.DataFrame:
+    parser = argparse.ArgumentParser(
+        prog="python recipes/results/latent_scale.py",
+        description=__doc__.split("\n\n", 1)[0],
+    )
+    parser.add_argument("runs", nargs="+", type=Path, help="run directories")
+    parser.add_argument("--envs", type=int, default=8, help="envs of the rollout")
+    parser.add_argument("--steps", type=int, default=600, help="steps per env")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the rollout")
+    parser.add_argument("--out", type=Path, help="CSV to write")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(1)
+    from results.heatmap import load_bonus_transform
+
+    episodes = {}
+    rows = []
+    for run in args.runs:
+        _, config, _ = load_bonus_transform(run)
+        env = (config["env"]["name"], config["env"].get("backend", "gymnasium"))
+        if env not in episodes:
+            episodes[env] = random_episodes(*env, args.envs, args.steps, args.seed)
+        rows.append(run_scale(run, episodes[env]))
+    table = pd.DataFrame(rows, columns=list(COLUMNS))
+    if args.out is not None:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        table.to_csv(args.out, index=False)
+        print(f"wrote {args.out}")
+    print(table.drop(columns="run").to_string(index=False))
+    return table
+
+
+if __name__ == "__main__":
+    main()
+    sys.exit(0)
