@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pandas as pd
 import pytest
 import torch
 
@@ -47,10 +48,11 @@ def test_longer_posterior_means_change_the_raw_bonus_not_the_unit_one(tmp_path):
     _run(tmp_path / "long", "elliptical", loc_scale=3.0)
     out = tmp_path / "scale.csv"
     argv = [str(tmp_path / "short"), str(tmp_path / "long"), "--out", str(out)]
-    table = main([*argv, "--envs", "2", "--steps", "40"]).set_index("setting")
-    assert out.is_file()
+    assert main([*argv, "--envs", "2", "--steps", "40"]) == 0
+    table = pd.read_csv(out).set_index("setting")
     short, long = table.loc["elliptical_1"], table.loc["elliptical_3"]
     assert (short["seed"], short["frames"]) == (3, 256)
+    assert (short["global_bonus"], bool(short["unit_latent"])) == ("none", False)
     assert long["mean_sq_norm"] == pytest.approx(9 * short["mean_sq_norm"], rel=1e-3)
     # an episode's first state: |mu|^2 / ridge; at unit length 1 / ridge
     assert long["first"] == pytest.approx(9 * short["first"], rel=1e-3)
@@ -60,7 +62,11 @@ def test_longer_posterior_means_change_the_raw_bonus_not_the_unit_one(tmp_path):
     assert long["other_mean"] > short["other_mean"]
 
 
-def test_a_run_without_the_elliptical_bonus_is_named(tmp_path):
+def test_a_run_without_the_elliptical_bonus_is_named(tmp_path, capsys):
     _run(tmp_path / "kl", "kl")
-    with pytest.raises(ValueError, match="variant is 'kl'.*elliptical"):
+    with pytest.raises(SystemExit) as raised:
         main([str(tmp_path / "kl"), "--envs", "2", "--steps", "5"])
+    assert raised.value.code == 2
+    assert "variant is 'kl'; the latent's scale is measured for the elliptical" in (
+        capsys.readouterr().err
+    )

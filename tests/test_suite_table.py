@@ -1,12 +1,13 @@
 """The suite's table on two fake suite experiments aggregated by aggregate.py.
 
 Task ``MiniGrid-KeyCorridorS3R3-v0@envpool`` (oracle 0.5, budget 1000 frames):
-``vae_a`` ends every seed at 0.95 of the oracle, ``vae_b`` at 0.5, ``e3b`` at 0.2,
-``none`` at 0, 3 seeds each, every run a straight ramp (so a seed's moving return
-crosses 0.9 of the oracle at frames ``1000 * 0.9 / final``). Task
+``vae_a`` ends every seed at 0.95 of the oracle, ``vae_u_untrained`` at 1.0,
+``vae_b`` one seed at 0.95 and two at 0.5, ``e3b`` at 0.2, ``none`` at 0, 3 seeds
+each, every run a straight ramp (so a seed's moving return crosses 0.9 of the
+oracle at frames ``1000 * 0.9 / final``). Task
 ``MiniGrid-DoorKey-16x16-v0@envpool`` (no oracle: scored by its success rate,
 budget 2000) has one seed of ``none``, ``vae_a`` (ending at a success rate of 0.5)
-and ``noveld`` (at 0.6).
+and ``noveld`` (at 0.6), and one of ``e3b`` killed at half the budget.
 """
 
 from __future__ import annotations
@@ -26,15 +27,18 @@ FINALS = {
         "none": [0.0] * 3,
         "e3b": [0.2] * 3,
         "vae_a": [0.95] * 3,
-        "vae_b": [0.5] * 3,
+        "vae_b": [0.95, 0.5, 0.5],
+        "vae_u_untrained": [1.0] * 3,
     },
-    D16: {"none": [0.0], "vae_a": [0.5], "noveld": [0.6]},
+    D16: {"none": [0.0], "vae_a": [0.5], "noveld": [0.6], "e3b": [0.3]},
 }
+#: Runs killed at half their budget: (task, setting).
+KILLED = {(D16, "e3b")}
 BUDGETS = {S3R3: 1000, D16: 2000}
 PUBLISHED = """task,method,learner,metric,value,budget_frames,seeds,source
 DoorKey-16x16,E3B,PPO,normalised score,0.98,not stated,,"RLeXplore README, figure"
 DoorKey-16x16,RND,PPO,normalised score,0.02,not stated,,"RLeXplore README, figure"
-DoorKey-16x16,RIDE,IMPALA,return,0.5,30000000,,"a paper, figure 3"
+DoorKey-16x16,RIDE,IMPALA,return,0.50,30000000,,"a paper, figure 3"
 """
 
 
@@ -57,6 +61,7 @@ def _runs_csv(path: Path, task: str) -> None:
         for seed, final in enumerate(finals)
         for frames in range(budget // 10, budget + 1, budget // 10)
         for metric in ("train/episode_return", "train/success_rate")
+        if (task, setting) not in KILLED or frames <= budget // 2
     ]
     path.parent.mkdir(parents=True)
     pd.DataFrame(rows).to_csv(path, index=False)
@@ -87,9 +92,8 @@ def suite(tmp_path_factory) -> dict[str, Path]:
     published = root / "published.csv"
     published.write_text(PUBLISHED)
     out = root / "suite"
-    assert (
-        main([*map(str, dirs), "--published", str(published), "--out", str(out)]) == 0
-    )
+    argv = [*map(str, dirs), "--published", str(published), "--out", str(out)]
+    assert main([*argv, "--min-seeds", "3"]) == 0
     return {"root": root, "dirs": dirs, "out": out, "published": published}
 
 
@@ -114,7 +118,10 @@ def test_each_task_is_scored_at_its_own_budget_against_its_oracle(suite):
 def test_a_setting_solves_a_task_at_0_9_of_the_oracle_with_its_frames(suite):
     table = read(suite["out"], "table.csv").set_index(["task", "setting"])
     solved = table[table["solved"]].index.tolist()
-    assert solved == [("KeyCorridorS3R3", "vae_a")]
+    assert solved == [
+        ("KeyCorridorS3R3", "vae_a"),
+        ("KeyCorridorS3R3", "vae_u_untrained"),
+    ]
     # a straight ramp to 0.95 crosses 0.9 at 1000 * 0.9 / 0.95 = 947 frames; the
     # first logged step at or past it is 1000
     assert table.loc[("KeyCorridorS3R3", "vae_a"), "median_frames_to_solve"] == 1000
@@ -122,6 +129,8 @@ def test_a_setting_solves_a_task_at_0_9_of_the_oracle_with_its_frames(suite):
     frames = read(suite["out"], "frames_to_solve.csv").set_index("task")
     assert frames.loc["KeyCorridorS3R3", "vae_a"] == "1k (3/3)"
     assert frames.loc["KeyCorridorS3R3", "e3b"] == "not reached (0/3)"
+    # one seed of three got there: the median is not reached, the count says 1
+    assert frames.loc["KeyCorridorS3R3", "vae_b"] == "not reached (1/3)"
     # without an oracle there are no frames to 0.9 of its return
     assert pd.isna(frames.loc["DoorKey-16x16", "noveld"])
 
@@ -137,8 +146,10 @@ def test_the_wide_table_puts_the_plain_learner_and_peers_first_and_published_bes
         "noveld",
         "vae_a",
         "vae_b",
+        "vae_u_untrained",
         "published",
     ]
+    assert wide.loc["DoorKey-16x16", "e3b"] == "no finished seed"
     assert wide.loc["KeyCorridorS3R3", "vae_a"] == "0.95 [0.95, 0.95] (3)"
     assert wide.loc["KeyCorridorS3R3", "budget"] == "1k"
     # a setting a task did not run is an empty cell, not a zero
@@ -150,26 +161,44 @@ def test_the_wide_table_puts_the_plain_learner_and_peers_first_and_published_bes
     assert pd.isna(wide.loc["KeyCorridorS3R3", "published"])
 
 
-def test_targets_judge_the_best_vae_setting_against_each_peer(suite):
-    targets = read(suite["out"], "targets.csv").set_index("task")
-    s3r3 = targets.loc["KeyCorridorS3R3"]
-    assert s3r3["best_vae"] == "vae_a"
-    assert bool(s3r3["best_vae_solves"])
-    assert s3r3["plain"] == "0.00 [0.00, 0.00] (3)"
+def _targets(out: Path) -> pd.DataFrame:
+    return read(out, "targets.csv").set_index(["task", "candidate"])
+
+
+def test_targets_judge_the_best_vae_setting_and_the_best_trained_one(suite):
+    targets = _targets(suite["out"])
+    any_vae = targets.loc[("KeyCorridorS3R3", "best VAE-based")]
+    trained = targets.loc[("KeyCorridorS3R3", "best trained VAE")]
+    # the untrained control is VAE-based; the trained candidate leaves it out
+    assert (any_vae["setting"], trained["setting"]) == ("vae_u_untrained", "vae_a")
+    assert trained["solves"] == "yes"
+    assert trained["score"] == "0.95 [0.95, 0.95] (3)"
+    assert trained["plain"] == "0.00 [0.00, 0.00] (3)"
     # every vae_a seed beats every e3b seed: probability 1 with its CI
-    assert s3r3["vs_e3b"] == 1.0
-    assert s3r3["vs_e3b_verdict"] == "better"
-    assert s3r3["noveld"] == "not run"
-    assert s3r3["vs_noveld_verdict"] == "not run"
-    d16 = targets.loc["DoorKey-16x16"]
-    assert not bool(d16["best_vae_solves"])
-    assert d16["vs_noveld"] == 0.0
-    # one seed a side is a screening, not a comparison
-    assert d16["vs_noveld_verdict"] == "too few seeds (1 vs 1)"
+    assert trained["vs_e3b"] == "1.00 [1.00, 1.00]"
+    assert trained["vs_e3b_verdict"] == "better"
+    assert trained["noveld"] == "not run"
+    assert trained["vs_noveld_verdict"] == "not run"
+
+
+def test_a_task_without_an_oracle_or_seeds_enough_gets_no_verdict(suite):
+    d16 = _targets(suite["out"]).loc[("DoorKey-16x16", "best trained VAE")]
+    assert d16["solves"] == "no (too few seeds: 1)"
+    assert d16["vs_noveld"] == "0.00 [0.00, 0.00]"
+    # its score is the success rate, the probabilities compare returns
+    assert d16["vs_noveld_verdict"] == "no verdict: no oracle"
+    assert d16["e3b"] == d16["vs_e3b_verdict"] == "no finished seed"
+
+
+def test_fewer_seeds_than_asked_for_are_too_few(suite, tmp_path):
+    write_suite(suite["dirs"], tmp_path)  # the default: 5 seeds a side
+    trained = _targets(tmp_path).loc[("KeyCorridorS3R3", "best trained VAE")]
+    assert trained["vs_e3b_verdict"] == "too few seeds (3 vs 3)"
+    assert trained["solves"] == "yes (too few seeds: 3)"
 
 
 def test_level_and_worse_verdicts_follow_the_interval(suite, tmp_path):
-    # vae_b (0.5) against e3b (0.2) with the CI moved by hand
+    # the best trained setting (vae_a) against e3b, with the CI moved by hand
     directory = tmp_path / "s3r3"
     directory.mkdir()
     source = suite["dirs"][0]
@@ -183,13 +212,19 @@ def test_level_and_worse_verdicts_follow_the_interval(suite, tmp_path):
             high,
         ]
         poi.to_csv(directory / "probability_of_improvement.csv", index=False)
-        write_suite([directory], tmp_path / "out")
-        targets = read(tmp_path / "out", "targets.csv").set_index("task")
-        assert targets.loc["KeyCorridorS3R3", "vs_e3b_verdict"] == verdict
+        write_suite([directory], tmp_path / "out", min_seeds=3)
+        targets = _targets(tmp_path / "out")
+        assert (
+            targets.loc[("KeyCorridorS3R3", "best trained VAE"), "vs_e3b_verdict"]
+            == verdict
+        )
 
 
 def test_regenerating_from_the_same_experiments_gives_the_same_tables(suite, tmp_path):
-    write_suite(suite["dirs"], tmp_path / "again", suite["published"])
+    write_suite(suite["dirs"], tmp_path / "again", suite["published"], min_seeds=3)
+    assert (tmp_path / "again" / "published.csv").read_bytes() == suite[
+        "published"
+    ].read_bytes()
     for name in ("table.csv", "wide.csv", "frames_to_solve.csv", "targets.csv"):
         assert (tmp_path / "again" / name).read_text() == (
             suite["out"] / name
@@ -205,6 +240,12 @@ def test_a_task_from_two_experiments_is_refused(suite, tmp_path):
         write_suite([suite["dirs"][0], copy], tmp_path / "out")
     with pytest.raises(SuiteInputError, match="given twice"):
         write_suite([suite["dirs"][0], suite["dirs"][0]], tmp_path / "out")
+    # the same task on the other backend: one name in the tables, two env ids
+    summary = read(copy, "summary.csv")
+    summary["task"] = summary["task"].str.removesuffix("@envpool")
+    summary.to_csv(copy / "summary.csv", index=False)
+    with pytest.raises(SuiteInputError, match="S3R3-v0 in .*S3R3-v0@envpool in"):
+        write_suite([suite["dirs"][0], copy], tmp_path / "out")
 
 
 def test_a_directory_without_a_summary_is_named(tmp_path, capsys):
@@ -214,6 +255,11 @@ def test_a_directory_without_a_summary_is_named(tmp_path, capsys):
     assert f"{tmp_path / 'summary.csv'} is missing" in capsys.readouterr().err
 
 
+def test_a_missing_published_table_says_what_it_should_be(suite, tmp_path):
+    with pytest.raises(SuiteInputError, match="missing: the published numbers are a"):
+        write_suite(suite["dirs"], tmp_path, tmp_path / "nowhere.csv")
+
+
 @pytest.mark.parametrize(
     "row, message",
     [
@@ -221,6 +267,7 @@ def test_a_directory_without_a_summary_is_named(tmp_path, capsys):
             "DoorKey-16x16,E3B,PPO,score,0.98,not stated,,",
             "line 2: a published number needs a source",
         ),
+        ("DoorKey-16x16,E3B,,score,0.98,not stated,,src", "needs a learner"),
         (
             "DoorKey-16x16,E3B,PPO,score,~0.98,not stated,,src",
             "value '~0.98' is not a number",

@@ -162,6 +162,9 @@ def test_a_unit_latent_bonus_reads_directions_not_the_latents_scale():
     longer = bonus(False)
     torch.testing.assert_close(longer[:, 0], raw[:, 0] * 25.0, rtol=1e-4, atol=0.0)
     assert ((longer - raw).abs() > 1e-3).all()
+    # a config's string is not taken for a bool ("false" would be true)
+    with pytest.raises(TypeError, match="unit_latent must be a bool, got 'false'"):
+        VAEEllipticalTransform(vae, unit_latent="false")
 
 
 def test_elliptical_bonus_falls_on_repeats_and_restarts_with_the_episode():

@@ -8,7 +8,9 @@ then differ in scale as much as in what they encode. For each run (its checkpoin
 as :func:`results.heatmap.load_bonus_transform` rebuilds its transform), this
 command encodes the same episodes (``--envs`` envs of the run's task and backend,
 ``--steps`` steps of a uniformly random policy, seeded ``--seed``), walks the
-episodic memory over them as a training batch does, and writes one row per run:
+episodic memory over them as a training batch does, and writes one row per run
+(its ``global_bonus`` and ``unit_latent`` named; the bonus is the episodic term
+alone, without a ``global_bonus="kl"`` run's KL factor):
 
 - ``mean_sq_norm``, ``max_sq_norm``: ``|mu|^2`` of the posterior means;
 - ``first``: the mean bonus of an episode's first bonus-bearing state (the memory
@@ -37,12 +39,16 @@ import torch
 
 from torchrl_surprise.transforms import VAEEllipticalTransform
 
+__all__ = ["COLUMNS", "bonus_stats", "load_elliptical", "random_episodes", "run_scale"]
+
 #: Columns of the output, per run.
 COLUMNS = (
     "run",
     "setting",
     "seed",
     "frames",
+    "global_bonus",
+    "unit_latent",
     "mean_sq_norm",
     "max_sq_norm",
     "first",
@@ -102,8 +108,12 @@ def bonus_stats(bonus: torch.Tensor, done: torch.Tensor) -> dict[str, float]:
     }
 
 
-def run_scale(run_dir: str | Path, episodes) -> dict:
-    """One run's row of :data:`COLUMNS` on ``episodes`` (:func:`random_episodes`)."""
+def load_elliptical(run_dir: str | Path):
+    """``(transform, config, frames)`` of a run whose bonus is the elliptical one.
+
+    Raises:
+        ValueError: the run's VAE bonus is another variant (naming it).
+    """
     from results.heatmap import load_bonus_transform
 
     transform, config, frames = load_bonus_transform(run_dir)
@@ -113,6 +123,13 @@ def run_scale(run_dir: str | Path, episodes) -> dict:
             f"{config['intrinsic']['vae'].get('variant')!r}; the latent's scale is "
             "measured for the elliptical bonus (variant 'elliptical')"
         )
+    return transform, config, frames
+
+
+def run_scale(run_dir: str | Path, loaded, episodes) -> dict:
+    """One run's row of :data:`COLUMNS`: ``loaded`` from :func:`load_elliptical`,
+    on ``episodes`` (:func:`random_episodes`)."""
+    transform, config, frames = loaded
     image, direction, done = episodes
     envs, steps = done.shape
     with torch.no_grad():
@@ -126,6 +143,8 @@ def run_scale(run_dir: str | Path, episodes) -> dict:
         "setting": config.get("setting") or "",
         "seed": config.get("seed"),
         "frames": frames,
+        "global_bonus": transform.global_bonus,
+        "unit_latent": transform.unit_latent,
         "mean_sq_norm": round(float(loc.pow(2).sum(-1).mean()), 4),
         "max_sq_norm": round(float(loc.pow(2).sum(-1).max()), 4),
     }
@@ -139,7 +158,7 @@ def run_scale(run_dir: str | Path, episodes) -> dict:
     return row
 
 
-def main(argv: Sequence[str] | None = None) -> pd.DataFrame:
+def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python recipes/results/latent_scale.py",
         description=__doc__.split("\n\n", 1)[0],
@@ -151,25 +170,27 @@ def main(argv: Sequence[str] | None = None) -> pd.DataFrame:
     parser.add_argument("--out", type=Path, help="CSV to write")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
-    from results.heatmap import load_bonus_transform
-
+    loaded = {}
+    for run in args.runs:
+        try:
+            loaded[run] = load_elliptical(run)
+        except (FileNotFoundError, ValueError) as error:
+            parser.error(str(error))
     episodes = {}
     rows = []
-    for run in args.runs:
-        _, config, _ = load_bonus_transform(run)
+    for run, (transform, config, frames) in loaded.items():
         env = (config["env"]["name"], config["env"].get("backend", "gymnasium"))
         if env not in episodes:
             episodes[env] = random_episodes(*env, args.envs, args.steps, args.seed)
-        rows.append(run_scale(run, episodes[env]))
+        rows.append(run_scale(run, (transform, config, frames), episodes[env]))
     table = pd.DataFrame(rows, columns=list(COLUMNS))
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         table.to_csv(args.out, index=False)
         print(f"wrote {args.out}")
     print(table.drop(columns="run").to_string(index=False))
-    return table
+    return 0
 
 
 if __name__ == "__main__":
-    main()
-    sys.exit(0)
+    sys.exit(main())

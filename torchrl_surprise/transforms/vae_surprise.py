@@ -242,7 +242,12 @@ class VAEEllipticalTransform(VAESurpriseTransform):
         self.memory = memory
         self.ridge = memory.ridge
         self.global_bonus = global_bonus
-        self.unit_latent = bool(unit_latent)
+        if not isinstance(unit_latent, bool):
+            raise TypeError(
+                f"unit_latent must be a bool, got {unit_latent!r} "
+                f"({type(unit_latent).__name__})."
+            )
+        self.unit_latent = unit_latent
         self.done_key = unravel_key(done_key)
 
     def reset_episodes(self) -> None:
