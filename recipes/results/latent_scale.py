@@ -178,11 +178,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             parser.error(str(error))
     episodes = {}
     rows = []
-    for run, (transform, config, frames) in loaded.items():
+    for run, (_, config, _) in loaded.items():
         env = (config["env"]["name"], config["env"].get("backend", "gymnasium"))
         if env not in episodes:
             episodes[env] = random_episodes(*env, args.envs, args.steps, args.seed)
-        rows.append(run_scale(run, (transform, config, frames), episodes[env]))
+        rows.append(run_scale(run, loaded[run], episodes[env]))
     table = pd.DataFrame(rows, columns=list(COLUMNS))
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -188,13 +188,11 @@ def read_experiments(
         raise SuiteInputError("no experiment directory given")
     summary = pd.concat(summaries, ignore_index=True)
     # the tables name a task by short_task: one env id and one experiment each
-    sources = summary.assign(short=summary["task"].map(short_task)).groupby("short")
+    sources = summary.assign(short=summary["task"].map(short_task))
+    sources = sources[["short", "task", "experiment"]].drop_duplicates()
     shared = {
-        short: sorted({f"{task} in {experiment}" for task, experiment in pairs})
-        for short, pairs in (
-            (short, set(zip(rows["task"], rows["experiment"])))
-            for short, rows in sources
-        )
+        short: sorted(f"{task} in {experiment}" for task, experiment in pairs.values)
+        for short, pairs in sources.groupby("short")[["task", "experiment"]]
         if len(pairs) > 1
     }
     if shared:
@@ -337,12 +335,7 @@ def wide_tables(
                 score[setting] = solve[setting] = ""
                 continue
             row = rows.loc[setting]
-            score[setting] = (
-                f"{row['iqm']:.2f} [{row['ci_low']:.2f}, {row['ci_high']:.2f}] "
-                f"({row['seeds']})"
-                if not pd.isna(row["iqm"])
-                else "no finished seed"
-            )
+            score[setting] = _score(rows, setting)
             if pd.isna(row["seeds_reaching"]) or not row["seeds_logged"]:
                 solve[setting] = ""
             elif pd.isna(row["median_frames_to_solve"]):

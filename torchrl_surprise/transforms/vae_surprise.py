@@ -237,16 +237,16 @@ class VAEEllipticalTransform(VAESurpriseTransform):
             raise ValueError(
                 f"global_bonus must be one of {GLOBAL_BONUSES}, got {global_bonus!r}."
             )
-        memory = EllipticalEpisodicMemory(vae.latent_dim, ridge)
-        super().__init__(vae, in_keys=in_keys, **kwargs)
-        self.memory = memory
-        self.ridge = memory.ridge
-        self.global_bonus = global_bonus
         if not isinstance(unit_latent, bool):
             raise TypeError(
                 f"unit_latent must be a bool, got {unit_latent!r} "
                 f"({type(unit_latent).__name__})."
             )
+        memory = EllipticalEpisodicMemory(vae.latent_dim, ridge)
+        super().__init__(vae, in_keys=in_keys, **kwargs)
+        self.memory = memory
+        self.ridge = memory.ridge
+        self.global_bonus = global_bonus
         self.unit_latent = unit_latent
         self.done_key = unravel_key(done_key)
 
