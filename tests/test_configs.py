@@ -257,7 +257,7 @@ def test_a_bad_value_is_refused_naming_its_setting(run, override):
                 (
                     "intrinsic.vae.variant=novelty",
                     "intrinsic.vae.variant must be one of 'kl', 'neg_elbo', "
-                    "'info_gain', 'lagged_kl', 'elliptical', got 'novelty'.",
+                    "'info_gain', 'lagged_kl', 'elliptical', 'noveld', got 'novelty'.",
                 ),
                 (
                     "intrinsic.vae.global_bonus=rnd",

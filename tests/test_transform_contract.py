@@ -47,13 +47,17 @@ from torchrl_surprise import (
     VAESurpriseTransform,
 )
 from torchrl_surprise.modules import E3BModel, RNDModel, kl_to_standard_normal
-from torchrl_surprise.transforms import E3BTransform, NovelDTransform
+from torchrl_surprise.transforms import (
+    E3BTransform,
+    NovelDTransform,
+    VAENovelDTransform,
+)
 
 OBS_DIM = 7  # the vector mock envs
 ACTION_DIM = 7
 KINDS = ["vae", "icm"]
 #: Episodic bonuses: their batch path walks a time dimension.
-EPISODIC = ["e3b", "noveld"]
+EPISODIC = ["e3b", "noveld", "vae_noveld"]
 #: The transforms that pass TorchRL's eleven checks.
 CONTRACT_KINDS = KINDS + EPISODIC
 NORMALIZATIONS = ["none", "reward_std", "zscore", "return_std"]
@@ -64,7 +68,7 @@ NORMALIZATIONS = ["none", "reward_std", "zscore", "return_std"]
 
 
 def make_model(kind: str, obs_dim: int = OBS_DIM, action_dim: int = ACTION_DIM):
-    if kind == "vae":
+    if kind in ("vae", "vae_noveld"):
         return StateVAE.for_vector(obs_dim, latent_dim=4, hidden_dim=16)
     if kind == "e3b":
         return E3BModel.for_vector(obs_dim, action_dim, embedding_dim=8, hidden_dim=16)
@@ -78,6 +82,7 @@ TRANSFORMS = {
     "icm": ICMTransform,
     "e3b": E3BTransform,
     "noveld": NovelDTransform,
+    "vae_noveld": VAENovelDTransform,
 }
 
 
@@ -132,7 +137,8 @@ def bonus_model(transform):
 
 
 def reference_episodic_bonus(transform, td: TensorDict) -> torch.Tensor:
-    """E3B's or NovelD's bonus by its definition, episode by episode.
+    """E3B's or NovelD's (on RND or the VAE) bonus by its definition, episode by
+    episode.
 
     ``td`` is ``[*envs, time]``; the bonus is ``[*envs, time, 1]``.
     """
@@ -155,9 +161,14 @@ def reference_episodic_bonus(transform, td: TensorDict) -> torch.Tensor:
                 if done[env, t]:
                     cov = transform.ridge * eye
     else:
-        rnd = transform.rnd
 
         def novelty(obs):
+            if isinstance(transform, VAENovelDTransform):  # the negative ELBO
+                vae = transform.vae
+                loc, scale = vae.posterior(*obs)
+                nll = -vae.decoder.log_prob(loc, *obs)
+                return (nll + kl_to_standard_normal(loc, scale)).double()
+            rnd = transform.rnd
             return (rnd.predictor(*obs) - rnd.target(*obs)).norm(dim=-1).double()
 
         now = [flat[key] for key in transform.in_keys]

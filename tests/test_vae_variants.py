@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import pytest
 import torch
+from tensordict import TensorDict
 from torchrl.envs import TransformedEnv, check_env_specs
 from torchrl.testing.mocking_classes import ContinuousActionVecMockEnv
 
 from torchrl_surprise import StateVAE, VAELoss
 from torchrl_surprise.transforms import (
     VAENegativeELBOTransform,
+    VAENovelDTransform,
     VAEPosteriorShiftTransform,
 )
 
@@ -262,3 +264,58 @@ def test_elliptical_memory_of_an_older_state_dict_loads():
     resumed = VAEEllipticalTransform(vae, in_keys=["observation"])
     resumed.load_state_dict(state)
     torch.testing.assert_close(resumed.memory.inv_cov, source.memory.inv_cov)
+
+
+def test_vae_noveld_pays_the_crossing_into_what_the_vae_has_not_learned(
+    minigrid_vae, make_minigrid_batch
+):
+    torch.manual_seed(0)
+    transform = VAENovelDTransform(minigrid_vae)
+    batch = make_minigrid_batch((16,))
+    seen = batch.select("image", "direction")
+    unseen = batch["next"].select("image", "direction")
+
+    def bonus(next_states):
+        # One step per env from a seen state; each s' is a first visit.
+        td = batch.clone()
+        td["next"].update(next_states)
+        transform.reset_episodes()
+        td = td.unsqueeze(-1).refine_names(None, "time")
+        return mean_bonus(transform, td)
+
+    within = seen.roll(1, 0)  # another seen state, never the state itself
+    before = bonus(unseen) / bonus(within)
+    _train(minigrid_vae, TensorDict({"next": seen}, [16]), steps=300)
+    after = bonus(unseen) / bonus(within)
+    # Untrained, every state is about as novel: the bonus is an episodic count.
+    assert 0.8 < before < 1.25
+    # Trained on the seen states: moving among them pays little, leaving them pays.
+    assert after > 2.0
+
+
+def test_vae_noveld_env_path_equals_batch_path_across_episodes():
+    from torchrl.envs import Compose, StepCounter
+
+    def make():
+        torch.manual_seed(0)
+        base = ContinuousActionVecMockEnv()
+        obs_dim = base.observation_spec["observation"].shape[-1]
+        vae = StateVAE.for_vector(obs_dim, latent_dim=4, hidden_dim=16)
+        bonus = VAENovelDTransform(vae, coef=0.1)
+        return TransformedEnv(base, Compose(StepCounter(max_steps=3), bonus)), bonus
+
+    env, bonus = make()
+    check_env_specs(env)
+    env, bonus = make()
+    rollout = env.rollout(10, break_when_any_done=False)
+    assert rollout["next", "done"].sum() == 3
+    assert (rollout["next", "intrinsic_reward"] > 0).any()
+    bonus.reset_episodes()
+    recomputed = bonus(rollout.clone())
+    torch.testing.assert_close(
+        recomputed["next", "intrinsic_reward"], rollout["next", "intrinsic_reward"]
+    )
+    # The VAE is held as ``vae`` (its state_dict prefix) beside the episodes' sets.
+    keys = bonus.state_dict().keys()
+    assert any(k.startswith("vae.") for k in keys)
+    assert not any(k.startswith("rnd.") for k in keys)

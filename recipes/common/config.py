@@ -103,6 +103,7 @@ VAE_VARIANTS: tuple[str, ...] = (
     "info_gain",
     "lagged_kl",
     "elliptical",
+    "noveld",
 )
 """``intrinsic.vae.variant``: the keys of ``common.minigrid.VAE_VARIANTS``."""
 BONUS_AT: tuple[str, ...] = ("sample", "collection")
@@ -304,7 +305,7 @@ class MiniGridVAEConfig(VAEConfig):
     """``intrinsic.vae`` of the MiniGrid recipe: the VAE and which of its bonuses."""
 
     variant: str = required(one_of(VAE_VARIANTS))
-    """kl, neg_elbo, info_gain, lagged_kl or elliptical (docs in config.yaml)."""
+    """kl, neg_elbo, info_gain, lagged_kl, elliptical or noveld (docs in config.yaml)."""
     lag_updates: int = required(POSITIVE)
     """lagged_kl: updates between two refreshes of the reference copy; > 0."""
     ridge: float = required(POSITIVE)
@@ -313,6 +314,8 @@ class MiniGridVAEConfig(VAEConfig):
     """elliptical: none, or kl to multiply the episodic bonus by the KL."""
     unit_latent: bool = required()
     """elliptical: the episodic term reads the posterior mean at unit length."""
+    alpha: float = required(NON_NEGATIVE)
+    """noveld: weight of novelty(s) in max(novelty(s') - alpha novelty(s), 0); >= 0."""
     use_direction: bool = required()
     """The VAE reads the agent's direction as well as the image."""
     inverse_weight: float = required(NON_NEGATIVE)

@@ -51,6 +51,7 @@ from torchrl_surprise.transforms import (
     PrecomputedBonusTransform,
     VAEEllipticalTransform,
     VAENegativeELBOTransform,
+    VAENovelDTransform,
     VAEPosteriorShiftTransform,
     make_coef_schedule,
 )
@@ -87,6 +88,8 @@ VAE_VARIANTS = {
     "lagged_kl": VAEPosteriorShiftTransform,
     # episodic novelty: E3B's elliptical bonus on the VAE's posterior mean
     "elliptical": VAEEllipticalTransform,
+    # NovelD's novelty difference on first visits, the novelty the VAE's -ELBO
+    "noveld": VAENovelDTransform,
 }
 """``intrinsic.vae.variant`` -> the transform that computes the VAE bonus."""
 RND_KEY = "rnd_reward"
@@ -99,9 +102,13 @@ def vae_variant_kwargs(variant: str, vae_cfg) -> dict:
     Examples:
         >>> vae_variant_kwargs("elliptical", {"ridge": 0.5})
         {'ridge': 0.5, 'global_bonus': 'none', 'unit_latent': False}
+        >>> vae_variant_kwargs("noveld", {"alpha": 0.25})
+        {'alpha': 0.25}
         >>> vae_variant_kwargs("kl", {"ridge": 0.5})
         {}
     """
+    if variant == "noveld":
+        return {"alpha": vae_cfg.get("alpha", 0.5)}
     if variant != "elliptical":
         return {}
     return {

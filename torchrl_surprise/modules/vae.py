@@ -664,6 +664,23 @@ class StateVAE(nn.Module):
         """``KL(q(z|s) || N(0, I))`` per state, in nats, shape ``[...]``."""
         return kl_to_standard_normal(*self.posterior(*observations))
 
+    def novelty(self, *observations: torch.Tensor) -> torch.Tensor:
+        """The negative ELBO per state, in nats, shape ``[...]``.
+
+        ``-log p(s | z = loc) + KL(q(z|s) || N(0, I))``: how badly the VAE
+        explains a state. It falls as the VAE trains on a state, as RND's error
+        does; the reconstruction reads the posterior mean, so it is deterministic.
+
+        Examples:
+            >>> import torch
+            >>> vae = StateVAE.for_vector(obs_dim=5, latent_dim=3, hidden_dim=16)
+            >>> vae.novelty(torch.randn(4, 5)).shape
+            torch.Size([4])
+        """
+        loc, scale = self.posterior(*observations)
+        nll = -self.decoder.log_prob(loc, *observations)
+        return nll + kl_to_standard_normal(loc, scale)
+
     def forward(self, *observations: torch.Tensor):
         """Posterior, a reparameterised sample and the reconstruction log-likelihood.
 

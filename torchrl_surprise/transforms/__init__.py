@@ -23,6 +23,7 @@ from torchrl_surprise.transforms.stochasticity import (
 from torchrl_surprise.transforms.vae_surprise import (
     VAEEllipticalTransform,
     VAENegativeELBOTransform,
+    VAENovelDTransform,
     VAEPosteriorShiftTransform,
     VAESurpriseTransform,
 )
@@ -42,6 +43,7 @@ __all__ = [
     "StochasticityTransform",
     "VAEEllipticalTransform",
     "VAENegativeELBOTransform",
+    "VAENovelDTransform",
     "VAEPosteriorShiftTransform",
     "VAESurpriseTransform",
     "WorkerCopyWarning",

@@ -78,6 +78,9 @@ class NovelDTransform(IntrinsicRewardTransform):
         True
     """
 
+    #: The attribute that holds the novelty model (its ``state_dict`` prefix).
+    model_attr = "rnd"
+
     def __init__(
         self,
         rnd: RNDModel,
@@ -99,7 +102,7 @@ class NovelDTransform(IntrinsicRewardTransform):
             visit_keys = [visit_keys]
         if not visit_keys:
             raise ValueError("NovelDTransform: visit_keys must not be empty.")
-        self.rnd = rnd
+        setattr(self, self.model_attr, rnd)
         self.alpha = float(alpha)
         self.visit_keys = [unravel_key(key) for key in visit_keys]
         self.done_key = unravel_key(done_key)
@@ -123,17 +126,21 @@ class NovelDTransform(IntrinsicRewardTransform):
         next_visits = self._observations(next_tensordict, where_next, self.visit_keys)
         return done, visits, next_visits
 
+    def novelty(self, *observations: torch.Tensor) -> torch.Tensor:
+        """``novelty(s)`` per state, ``[...]``: the model's ``novelty``."""
+        return getattr(self, self.model_attr).novelty(*observations)
+
     def _novelty_gain(
         self, tensordict: TensorDictBase, next_tensordict: TensorDictBase
     ) -> torch.Tensor:
-        """``max(novelty(s') - alpha * novelty(s), 0)``, one RND pass for both."""
+        """``max(novelty(s') - alpha * novelty(s), 0)``, one model pass for both."""
         obs = self._observations(tensordict, "the root tensordict (s_t)")
         next_obs = self._observations(next_tensordict, "the 'next' tensordict")
         if all(o.shape == n.shape for o, n in zip(obs, next_obs, strict=True)):
             stacked = [torch.stack([o, n]) for o, n in zip(obs, next_obs, strict=True)]
-            novelty, next_novelty = self.rnd.novelty(*stacked).unbind(0)
+            novelty, next_novelty = self.novelty(*stacked).unbind(0)
         else:
-            novelty, next_novelty = self.rnd.novelty(*obs), self.rnd.novelty(*next_obs)
+            novelty, next_novelty = self.novelty(*obs), self.novelty(*next_obs)
         return (next_novelty - self.alpha * novelty).clamp_min(0.0)
 
     def _compute_bonus(

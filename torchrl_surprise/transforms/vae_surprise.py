@@ -12,11 +12,13 @@ from tensordict.utils import NestedKey, unravel_key
 from torchrl_surprise.modules.vae import StateVAE, kl_to_standard_normal
 from torchrl_surprise.transforms.base import IntrinsicRewardTransform
 from torchrl_surprise.transforms.episodic import EllipticalEpisodicMemory
+from torchrl_surprise.transforms.noveld import NovelDTransform
 
 __all__ = [
     "GLOBAL_BONUSES",
     "VAEEllipticalTransform",
     "VAENegativeELBOTransform",
+    "VAENovelDTransform",
     "VAEPosteriorShiftTransform",
     "VAESurpriseTransform",
 ]
@@ -103,9 +105,7 @@ class VAENegativeELBOTransform(VAESurpriseTransform):
         self, tensordict: TensorDictBase, next_tensordict: TensorDictBase
     ) -> torch.Tensor:
         observations = self._observations(next_tensordict, "the 'next' tensordict")
-        loc, scale = self.vae.posterior(*observations)
-        nll = -self.vae.decoder.log_prob(loc, *observations)
-        return nll + kl_to_standard_normal(loc, scale)
+        return self.vae.novelty(*observations)
 
 
 class VAEPosteriorShiftTransform(VAESurpriseTransform):
@@ -299,3 +299,59 @@ class VAEEllipticalTransform(VAESurpriseTransform):
         if old is not None:
             state_dict[prefix + "memory.inv_cov"] = old
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+
+class VAENovelDTransform(NovelDTransform):
+    """NovelD on the VAE: the gain in its negative ELBO, paid on first visits.
+
+    ``r_int(s, s') = max(novelty(s') - alpha * novelty(s), 0) * 1[s' is visited
+    for the first time in this episode]``
+
+    with ``novelty`` the VAE's negative ELBO (:meth:`StateVAE.novelty
+    <torchrl_surprise.StateVAE.novelty>`, the bonus of
+    :class:`VAENegativeELBOTransform`) in place of NovelD's RND error. The
+    VAE, trained by :class:`~torchrl_surprise.VAELoss` on the states the agent
+    visits, explains its familiar states better than new ones, so the
+    difference pays crossing into the part of the world it has not learned
+    yet. A VAE that never trains gives every state about the same novelty: the
+    bonus is then close to ``(1 - alpha)`` times a constant on first visits, an
+    episodic count, which is the control for what the VAE's training buys.
+
+    Everything else is :class:`~torchrl_surprise.transforms.NovelDTransform`'s:
+    ``alpha``, the first-visit indicator on ``visit_keys``, the per-env sets in
+    ``visits`` (saved by ``state_dict``), the env path and the time-ordered
+    batch path, :meth:`reset_episodes`. The VAE is held as ``vae``.
+
+    Args:
+        vae (StateVAE): the state VAE (trained by ``VAELoss``).
+        in_keys (sequence of NestedKey, optional): observation keys, in the order
+            the VAE takes them. Defaults to ``vae.in_keys``.
+        **kwargs: see :class:`~torchrl_surprise.transforms.NovelDTransform`.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl_surprise import StateVAE
+        >>> vae = StateVAE.for_vector(3, latent_dim=2, hidden_dim=8)
+        >>> t = VAENovelDTransform(vae, in_keys=["observation"], coef=0.1)
+        >>> obs = torch.randn(1, 3, 3)  # one env: s0, s1, s0 again
+        >>> obs[0, 2] = obs[0, 0]
+        >>> td = TensorDict({"observation": obs[:, :-1],
+        ...                  "next": {"observation": obs[:, 1:],
+        ...                           "reward": torch.zeros(1, 2, 1),
+        ...                           "done": torch.zeros(1, 2, 1, dtype=torch.bool)}},
+        ...                 [1, 2], names=[None, "time"])
+        >>> bonus = t(td)["next", "intrinsic_reward"][0, :, 0]
+        >>> bool(bonus[0] > 0), float(bonus[1])  # s1 is new; s0 was seen
+        (True, 0.0)
+    """
+
+    model_attr = "vae"
+
+    def __init__(
+        self,
+        vae: StateVAE,
+        in_keys: Sequence[NestedKey] | None = None,
+        **kwargs,
+    ):
+        super().__init__(vae, in_keys, **kwargs)
