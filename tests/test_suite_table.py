@@ -2,7 +2,8 @@
 
 Task ``MiniGrid-KeyCorridorS3R3-v0@envpool`` (oracle 0.5, budget 1000 frames):
 ``vae_a`` ends every seed at 0.95 of the oracle, ``vae_u_untrained`` at 1.0,
-``vae_b`` one seed at 0.95 and two at 0.5, ``e3b`` at 0.2, ``none`` at 0, 3 seeds
+``vae_b`` one seed at 0.95 and two at 0.5, ``vae_a_untrained`` (``vae_a``'s
+control) at 0.5, ``e3b`` at 0.2, ``none`` at 0, 3 seeds
 each, every run a straight ramp (so a seed's moving return crosses 0.9 of the
 oracle at frames ``1000 * 0.9 / final``). Task
 ``MiniGrid-DoorKey-16x16-v0@envpool`` (no oracle: scored by its success rate,
@@ -29,6 +30,7 @@ FINALS = {
         "vae_a": [0.95] * 3,
         "vae_b": [0.95, 0.5, 0.5],
         "vae_u_untrained": [1.0] * 3,
+        "vae_a_untrained": [0.5] * 3,
     },
     D16: {"none": [0.0], "vae_a": [0.5], "noveld": [0.6], "e3b": [0.3]},
 }
@@ -145,6 +147,7 @@ def test_the_wide_table_puts_the_plain_learner_and_peers_first_and_published_bes
         "e3b",
         "noveld",
         "vae_a",
+        "vae_a_untrained",
         "vae_b",
         "vae_u_untrained",
         "published",
@@ -179,6 +182,14 @@ def test_targets_judge_the_best_vae_setting_and_the_best_trained_one(suite):
     assert trained["vs_e3b_verdict"] == "better"
     assert trained["noveld"] == "not run"
     assert trained["vs_noveld_verdict"] == "not run"
+    # whether the VAE's training earns its cost: vae_a against vae_a_untrained
+    assert trained["untrained_control"] == "vae_a_untrained"
+    assert trained["untrained"] == "0.50 [0.50, 0.50] (3)"
+    assert trained["vs_untrained"] == "1.00 [1.00, 1.00]"
+    assert trained["vs_untrained_verdict"] == "better"
+    # an untrained setting is its own control; vae_u has no trained twin run
+    assert pd.isna(any_vae["untrained_control"])
+    assert any_vae["vs_untrained_verdict"] == "is an untrained control"
 
 
 def test_a_task_without_an_oracle_or_seeds_enough_gets_no_verdict(suite):
@@ -188,6 +199,8 @@ def test_a_task_without_an_oracle_or_seeds_enough_gets_no_verdict(suite):
     # its score is the success rate, the probabilities compare returns
     assert d16["vs_noveld_verdict"] == "no verdict: no oracle"
     assert d16["e3b"] == d16["vs_e3b_verdict"] == "no finished seed"
+    assert d16["untrained_control"] == "vae_a_untrained"
+    assert d16["untrained"] == d16["vs_untrained_verdict"] == "not run"
 
 
 def test_fewer_seeds_than_asked_for_are_too_few(suite, tmp_path):

@@ -37,7 +37,10 @@ moving return first reached 0.9 of the oracle's.
   the task; and against E3B and NovelD the probability that it is better (from
   the task's ``probability_of_improvement.csv``) with a verdict: ``better`` (the
   CI above 0.5), ``worse`` (below), ``level`` (the CI holds 0.5) or ``too few
-  seeds`` (either side under ``--min-seeds``, default :data:`MIN_SEEDS`).
+  seeds`` (either side under ``--min-seeds``, default :data:`MIN_SEEDS`);
+  then the same against the candidate's untrained control (the setting named
+  ``<candidate>_untrained``: the same bonus on a VAE that never trains), which
+  says whether the VAE's training earns its cost on the task.
 - ``published.csv``: the published numbers, checked, copied as given.
 
 The published table has the columns of :data:`PUBLISHED_COLUMNS`; ``task`` is
@@ -74,6 +77,9 @@ VAE_PREFIX = "vae"
 PEERS: tuple[str, ...] = ("e3b", "noveld")
 #: The plain learner.
 PLAIN = "none"
+#: A VAE-based setting's control, the same bonus on a VAE that never trains, is
+#: named by this suffix (``vae_noveld`` -> ``vae_noveld_untrained``).
+UNTRAINED = "_untrained"
 #: Fraction of the oracle's return (or success rate without an oracle) that solves.
 SOLVED_RETURN, SOLVED_SUCCESS = 0.9, 0.95
 #: Seeds each side needs before ``targets.csv`` says better, level or worse: the
@@ -393,7 +399,7 @@ CANDIDATES: tuple[tuple[str, str], ...] = (
 
 def _candidates(scored: pd.DataFrame) -> dict[str, str]:
     vae = scored[scored.index.str.startswith(VAE_PREFIX)]
-    trained = vae[~vae.index.str.endswith("_untrained")]
+    trained = vae[~vae.index.str.endswith(UNTRAINED)]
     return {
         label: (group["iqm"].idxmax() if len(group) else "")
         for (label, _), group in zip(CANDIDATES, (vae, trained))
@@ -443,8 +449,44 @@ def targets(
                     "" if pd.isna(probability) else f"{probability:.2f} {verdict['ci']}"
                 )
                 out[f"vs_{peer}_verdict"] = verdict["verdict"]
+            control = _against_control(ran, scored, poi, task, best, min_seeds)
+            if not normalized and control["vs_untrained"]:
+                control["vs_untrained_verdict"] = "no verdict: no oracle"
+            out.update(control)
             rows.append(out)
     return pd.DataFrame(rows)
+
+
+def _against_control(
+    ran: pd.DataFrame,
+    scored: pd.DataFrame,
+    poi: pd.DataFrame,
+    task: str,
+    best: str,
+    min_seeds: int,
+) -> dict:
+    """The candidate against the same bonus on a VAE that never trains."""
+    if not best or best.endswith(UNTRAINED):
+        control = ""
+        verdict = {"ci": "", "probability": pd.NA}
+        verdict["verdict"] = "is an untrained control" if best else "not run"
+    else:
+        control = best + UNTRAINED
+        if control not in scored.index:
+            verdict = dict(_NO_VERDICT)
+            if control in ran.index:
+                verdict["verdict"] = "no finished seed"
+        else:
+            verdict = _verdict(poi, task, best, control, min_seeds)
+    probability = verdict["probability"]
+    return {
+        "untrained_control": control,
+        "untrained": _score(ran, control) if control else "",
+        "vs_untrained": (
+            "" if pd.isna(probability) else f"{probability:.2f} {verdict['ci']}"
+        ),
+        "vs_untrained_verdict": verdict["verdict"],
+    }
 
 
 def _score(ran: pd.DataFrame, setting: str) -> str:
