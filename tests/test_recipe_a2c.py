@@ -114,7 +114,7 @@ def test_every_bonus_runs_end_to_end(tmp_path, request, bonus):
         assert not (run_dir / "checkpoints").exists()
 
 
-@pytest.mark.parametrize("variant", ["neg_elbo", "info_gain", "lagged_kl"])
+@pytest.mark.parametrize("variant", ["neg_elbo", "info_gain", "lagged_kl", "noveld"])
 def test_vae_variants_run_end_to_end(tmp_path, variant):
     run_dir = tmp_path / variant
     overrides = [f"intrinsic.vae.variant={variant}", "intrinsic.vae.lag_updates=2"]
