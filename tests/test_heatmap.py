@@ -31,6 +31,7 @@ from results.heatmap import (
 from torchrl_surprise import StateVAE, VAESurpriseTransform
 from torchrl_surprise.transforms import (
     VAEEllipticalTransform,
+    VAENovelDTransform,
     VAEPosteriorShiftTransform,
 )
 
@@ -249,6 +250,16 @@ def test_clear_errors(tmp_path):
         load_bonus_transform(icm_run)
     with pytest.raises(ValueError, match="icm_run"):
         main([str(icm_run), "--out", str(tmp_path / "x.png")])
+    # NovelD on the VAE pays transitions: no map, said so before anything is drawn
+    noveld_run = tmp_path / "noveld_run"
+    noveld_run.mkdir()
+    write_checkpoint(
+        noveld_run / "checkpoint.pt",
+        small_transform(VAENovelDTransform),
+        variant="noveld",
+    )
+    with pytest.raises(ValueError, match="noveld_run.*'noveld' pays a transition"):
+        main([str(noveld_run), "--out", str(tmp_path / "x.png")])
     with pytest.raises(ValueError, match="memory-steps must be >= 0"):
         run_dir = tmp_path / "kl_run"
         run_dir.mkdir()

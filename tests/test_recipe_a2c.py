@@ -123,6 +123,12 @@ def test_vae_variants_run_end_to_end(tmp_path, variant):
     run_recipe(run_dir, "bonus=vae", *overrides, "collector.total_frames=256")
     _, raw = read_scalar_csv(run_dir / "logs/a2c/scalars/train/intrinsic_reward.csv")
     assert torch.isfinite(torch.as_tensor(raw)).all() and (raw > 0).any()
+    # the variant's own state is in the checkpoint: NovelD's first-visit sets,
+    # the posterior shift's reference copy
+    state = load_checkpoint(run_dir / "checkpoint.torchrl")["bonus_transform"]
+    own = {"noveld": "visits.", "info_gain": "reference.", "lagged_kl": "reference."}
+    if variant in own:
+        assert any(key.startswith(own[variant]) for key in state), sorted(state)
 
 
 def test_transfer_starts_the_bonus_model_from_another_run(tmp_path):

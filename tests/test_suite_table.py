@@ -7,8 +7,9 @@ control) at 0.5, ``e3b`` at 0.2, ``none`` at 0, 3 seeds
 each, every run a straight ramp (so a seed's moving return crosses 0.9 of the
 oracle at frames ``1000 * 0.9 / final``). Task
 ``MiniGrid-DoorKey-16x16-v0@envpool`` (no oracle: scored by its success rate,
-budget 2000) has one seed of ``none``, ``vae_a`` (ending at a success rate of 0.5)
-and ``noveld`` (at 0.6), and one of ``e3b`` killed at half the budget.
+budget 2000) has one seed of ``none``, ``vae_a`` (ending at a success rate of 0.5),
+``vae_a_untrained`` (0.4) and ``noveld`` (at 0.6), and one of ``e3b`` killed at half
+the budget.
 """
 
 from __future__ import annotations
@@ -32,7 +33,13 @@ FINALS = {
         "vae_u_untrained": [1.0] * 3,
         "vae_a_untrained": [0.5] * 3,
     },
-    D16: {"none": [0.0], "vae_a": [0.5], "noveld": [0.6], "e3b": [0.3]},
+    D16: {
+        "none": [0.0],
+        "vae_a": [0.5],
+        "vae_a_untrained": [0.4],
+        "noveld": [0.6],
+        "e3b": [0.3],
+    },
 }
 #: Runs killed at half their budget: (task, setting).
 KILLED = {(D16, "e3b")}
@@ -200,7 +207,8 @@ def test_a_task_without_an_oracle_or_seeds_enough_gets_no_verdict(suite):
     assert d16["vs_noveld_verdict"] == "no verdict: no oracle"
     assert d16["e3b"] == d16["vs_e3b_verdict"] == "no finished seed"
     assert d16["untrained_control"] == "vae_a_untrained"
-    assert d16["untrained"] == d16["vs_untrained_verdict"] == "not run"
+    assert d16["untrained"] == "0.40 [0.40, 0.40] (1)"  # its success rate
+    assert d16["vs_untrained_verdict"] == "no verdict: no oracle"
 
 
 def test_fewer_seeds_than_asked_for_are_too_few(suite, tmp_path):

@@ -92,6 +92,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 __all__ = [
     "CATEGORIES",
+    "UNMAPPED_VARIANTS",
     "bonus_grid",
     "category_means",
     "category_table",
@@ -112,6 +113,9 @@ __all__ = [
 CATEGORIES: tuple[str, ...] = ("doorway", "near_goal", "door_in_view", "other")
 """The cell categories of :func:`cell_categories`, in their order of precedence."""
 
+UNMAPPED_VARIANTS: tuple[str, ...] = ("noveld",)
+"""VAE variants without a map: their bonus pays a transition ``(s, s')``, not a state."""
+
 # minigrid.core.constants.OBJECT_TO_IDX
 _DOOR_ID = 4
 # MiniGrid's directions: 0 right (+x), 1 down (+y), 2 left, 3 up.
@@ -122,8 +126,8 @@ _NEIGHBOURS = ((1, 0), (0, 1), (-1, 0), (0, -1))
 def make_layout_env(env_name: str, layout_seed: int = 0):
     """``gym.make(env_name, render_mode="rgb_array")``, reset to one layout.
 
-    Imports :mod:`torchrl_surprise.envs` first, which registers the paper's
-    MultiRoom ids.
+    Registers minigrid's envs and the paper's MultiRoom ids first
+    (:func:`~torchrl_surprise.envs.register_minigrid_envs`).
 
     Examples:
         >>> env = make_layout_env("MiniGrid-MultiRoom-N3-S4-v0", layout_seed=0)
@@ -132,8 +136,9 @@ def make_layout_env(env_name: str, layout_seed: int = 0):
     """
     import gymnasium as gym
 
-    import torchrl_surprise.envs  # noqa: F401 (registers the MultiRoom N3S4/N4S4 ids)
+    from torchrl_surprise.envs import register_minigrid_envs
 
+    register_minigrid_envs()
     env = gym.make(env_name, render_mode="rgb_array")
     env.reset(seed=layout_seed)
     return env
@@ -616,6 +621,12 @@ def load_bonus_transform(run_dir_or_ckpt: str | os.PathLike):
         raise ValueError(
             f"{path}: unknown intrinsic.vae.variant {variant!r}; expected one of "
             f"{tuple(VAE_VARIANTS)}."
+        )
+    if variant in UNMAPPED_VARIANTS:
+        raise ValueError(
+            f"{path}: intrinsic.vae.variant {variant!r} pays a transition (s, s'), "
+            "not a state, so it has no map of cells; the heatmap draws the "
+            f"variants {tuple(v for v in VAE_VARIANTS if v not in UNMAPPED_VARIANTS)}."
         )
     vae = StateVAE.for_minigrid(
         latent_dim=vcfg["latent_dim"],

@@ -450,7 +450,7 @@ def targets(
                 )
                 out[f"vs_{peer}_verdict"] = verdict["verdict"]
             control = _against_control(ran, scored, poi, task, best, min_seeds)
-            if not normalized and control["vs_untrained"]:
+            if not normalized and control["untrained_control"] in scored.index:
                 control["vs_untrained_verdict"] = "no verdict: no oracle"
             out.update(control)
             rows.append(out)

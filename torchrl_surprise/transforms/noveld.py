@@ -48,6 +48,12 @@ class NovelDTransform(IntrinsicRewardTransform):
     time-ordered (a replay-buffer sample) is refused. Call
     :meth:`reset_episodes` before recomputing the bonus of a batch already seen.
 
+    A subclass may take another novelty model: it sets :attr:`model_attr`, the
+    attribute that holds the model (its ``state_dict`` prefix), and the model
+    gives ``novelty(*observations)`` and ``in_keys``
+    (:class:`~torchrl_surprise.transforms.VAENovelDTransform`: the VAE's
+    negative ELBO).
+
     Args:
         rnd (RNDModel): the target and predictor (shared with the loss).
         in_keys (sequence of NestedKey, optional): observation keys, in the order
@@ -101,7 +107,7 @@ class NovelDTransform(IntrinsicRewardTransform):
         elif isinstance(visit_keys, str):
             visit_keys = [visit_keys]
         if not visit_keys:
-            raise ValueError("NovelDTransform: visit_keys must not be empty.")
+            raise ValueError(f"{type(self).__name__}: visit_keys must not be empty.")
         setattr(self, self.model_attr, rnd)
         self.alpha = float(alpha)
         self.visit_keys = [unravel_key(key) for key in visit_keys]

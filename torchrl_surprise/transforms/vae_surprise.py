@@ -308,7 +308,7 @@ class VAENovelDTransform(NovelDTransform):
     for the first time in this episode]``
 
     with ``novelty`` the VAE's negative ELBO (:meth:`StateVAE.novelty
-    <torchrl_surprise.StateVAE.novelty>`, the bonus of
+    <torchrl_surprise.modules.StateVAE.novelty>`, the bonus of
     :class:`VAENegativeELBOTransform`) in place of NovelD's RND error. The
     VAE, trained by :class:`~torchrl_surprise.VAELoss` on the states the agent
     visits, explains its familiar states better than new ones, so the
@@ -332,6 +332,8 @@ class VAENovelDTransform(NovelDTransform):
         >>> import torch
         >>> from tensordict import TensorDict
         >>> from torchrl_surprise import StateVAE
+        >>> torch.manual_seed(0)  # doctest: +ELLIPSIS
+        <torch._C.Generator object at ...>
         >>> vae = StateVAE.for_vector(3, latent_dim=2, hidden_dim=8)
         >>> t = VAENovelDTransform(vae, in_keys=["observation"], coef=0.1)
         >>> obs = torch.randn(1, 3, 3)  # one env: s0, s1, s0 again
