@@ -67,6 +67,7 @@ import argparse
 import shutil
 import sys
 from collections.abc import Sequence
+from functools import partial
 from pathlib import Path
 
 import pandas as pd
@@ -434,59 +435,48 @@ def targets(
                 if seeds < min_seeds:
                     out["solves"] += f" (too few seeds: {seeds})"
             out["plain"] = _score(ran, PLAIN)
+            compare = partial(
+                _compare, ran, scored, poi, task, best, min_seeds, normalized
+            )
             for peer in PEERS:
                 out[peer] = _score(ran, peer)
-                if not best or peer not in scored.index:
-                    verdict = dict(_NO_VERDICT)
-                else:
-                    verdict = _verdict(poi, task, best, peer, min_seeds)
-                    if not normalized:
-                        verdict["verdict"] = "no verdict: no oracle"
-                if peer in ran.index and peer not in scored.index:
-                    verdict["verdict"] = "no finished seed"
-                probability = verdict["probability"]
-                out[f"vs_{peer}"] = (
-                    "" if pd.isna(probability) else f"{probability:.2f} {verdict['ci']}"
-                )
-                out[f"vs_{peer}_verdict"] = verdict["verdict"]
-            control = _against_control(ran, scored, poi, task, best, min_seeds)
-            if not normalized and control["untrained_control"] in scored.index:
-                control["vs_untrained_verdict"] = "no verdict: no oracle"
-            out.update(control)
+                out[f"vs_{peer}"], out[f"vs_{peer}_verdict"] = compare(peer)
+            # against the same bonus on a VAE that never trains
+            if not best or best.endswith(UNTRAINED):
+                control, untrained = "", ""
+                vs_control = ("", "is an untrained control" if best else "not run")
+            else:
+                control = best + UNTRAINED
+                untrained, vs_control = _score(ran, control), compare(control)
+            out["untrained_control"], out["untrained"] = control, untrained
+            out["vs_untrained"], out["vs_untrained_verdict"] = vs_control
             rows.append(out)
     return pd.DataFrame(rows)
 
 
-def _against_control(
+def _compare(
     ran: pd.DataFrame,
     scored: pd.DataFrame,
     poi: pd.DataFrame,
     task: str,
     best: str,
     min_seeds: int,
-) -> dict:
-    """The candidate against the same bonus on a VAE that never trains."""
-    if not best or best.endswith(UNTRAINED):
-        control = ""
-        verdict = {"ci": "", "probability": pd.NA}
-        verdict["verdict"] = "is an untrained control" if best else "not run"
+    normalized: bool,
+    other: str,
+) -> tuple[str, str]:
+    """The candidate ``best`` against the setting ``other``: the probability of
+    improvement with its CI, and the verdict."""
+    if not best or other not in scored.index:
+        verdict = dict(_NO_VERDICT)
+        if other in ran.index:
+            verdict["verdict"] = "no finished seed"
     else:
-        control = best + UNTRAINED
-        if control not in scored.index:
-            verdict = dict(_NO_VERDICT)
-            if control in ran.index:
-                verdict["verdict"] = "no finished seed"
-        else:
-            verdict = _verdict(poi, task, best, control, min_seeds)
+        verdict = _verdict(poi, task, best, other, min_seeds)
+        if not normalized:
+            verdict["verdict"] = "no verdict: no oracle"
     probability = verdict["probability"]
-    return {
-        "untrained_control": control,
-        "untrained": _score(ran, control) if control else "",
-        "vs_untrained": (
-            "" if pd.isna(probability) else f"{probability:.2f} {verdict['ci']}"
-        ),
-        "vs_untrained_verdict": verdict["verdict"],
-    }
+    cell = "" if pd.isna(probability) else f"{probability:.2f} {verdict['ci']}"
+    return cell, verdict["verdict"]
 
 
 def _score(ran: pd.DataFrame, setting: str) -> str:
