@@ -194,6 +194,8 @@ BAD_VALUES = {
     "optim.max_grad_norm=nan": "optim.max_grad_norm must be a finite number > 0, "
     "got nan.",
     "loss.entropy_coef=nan": "loss.entropy_coef must be a finite number >= 0, got nan.",
+    "intrinsic.vae.novelty=foo": "intrinsic.vae.novelty must be one of 'neg_elbo', "
+    "'kl', got 'foo'.",
     "logger.backend=foo": "logger.backend must be one of 'csv', 'tensorboard', "
     "'wandb', 'mlflow', '', got 'foo'.",
     # DDPG's counterparts of MiniGrid's settings
@@ -204,6 +206,7 @@ BAD_VALUES = {
 }
 MINIGRID_ONLY = {
     "collector.frames_per_env=8.5",
+    "intrinsic.vae.novelty=foo",
     "intrinsic.update_steps=1.5",
     "optim.lr=inf",
     "optim.max_grad_norm=nan",

@@ -57,7 +57,7 @@ OBS_DIM = 7  # the vector mock envs
 ACTION_DIM = 7
 KINDS = ["vae", "icm"]
 #: Episodic bonuses: their batch path walks a time dimension.
-EPISODIC = ["e3b", "noveld", "vae_noveld"]
+EPISODIC = ["e3b", "noveld", "vae_noveld", "vae_noveld_kl"]
 #: The transforms that pass TorchRL's eleven checks.
 CONTRACT_KINDS = KINDS + EPISODIC
 NORMALIZATIONS = ["none", "reward_std", "zscore", "return_std"]
@@ -68,7 +68,7 @@ NORMALIZATIONS = ["none", "reward_std", "zscore", "return_std"]
 
 
 def make_model(kind: str, obs_dim: int = OBS_DIM, action_dim: int = ACTION_DIM):
-    if kind in ("vae", "vae_noveld"):
+    if kind in ("vae", "vae_noveld", "vae_noveld_kl"):
         return StateVAE.for_vector(obs_dim, latent_dim=4, hidden_dim=16)
     if kind == "e3b":
         return E3BModel.for_vector(obs_dim, action_dim, embedding_dim=8, hidden_dim=16)
@@ -89,6 +89,8 @@ TRANSFORMS = {
 def make_transform(kind: str, model=None, **kwargs):
     if model is None:
         model = make_model(kind)
+    if kind == "vae_noveld_kl":  # NovelD on the VAE's KL
+        return VAENovelDTransform(model, novelty="kl", **kwargs)
     return TRANSFORMS[kind](model, **kwargs)
 
 
@@ -163,8 +165,11 @@ def reference_episodic_bonus(transform, td: TensorDict) -> torch.Tensor:
     else:
 
         def novelty(obs):
-            if isinstance(transform, VAENovelDTransform):  # the negative ELBO
+            if isinstance(transform, VAENovelDTransform):
                 vae = transform.vae
+                if transform.novelty_kind == "kl":
+                    return vae.kl(*obs).double()
+                # the negative ELBO
                 loc, scale = vae.posterior(*obs)
                 nll = -vae.decoder.log_prob(loc, *obs)
                 return (nll + kl_to_standard_normal(loc, scale)).double()

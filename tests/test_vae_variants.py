@@ -323,3 +323,17 @@ def test_vae_noveld_env_path_equals_batch_path_across_episodes():
     keys = bonus.state_dict().keys()
     assert any(k.startswith("vae.") for k in keys)
     assert not any(k.startswith("rnd.") for k in keys)
+
+
+def test_vae_noveld_novelty_is_the_elbo_or_the_kl_and_nothing_else():
+    vae = StateVAE.for_vector(3, latent_dim=2, hidden_dim=8)
+    obs = torch.randn(5, 3)
+    with torch.no_grad():
+        kl = VAENovelDTransform(vae, in_keys=["observation"], novelty="kl")
+        elbo = VAENovelDTransform(vae, in_keys=["observation"])
+        torch.testing.assert_close(kl.novelty(obs), vae.kl(obs))
+        torch.testing.assert_close(elbo.novelty(obs), vae.novelty(obs))
+    with pytest.raises(
+        ValueError, match=r"novelty must be one of \('neg_elbo', 'kl'\)"
+    ):
+        VAENovelDTransform(vae, in_keys=["observation"], novelty="elbo")

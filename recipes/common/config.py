@@ -55,7 +55,7 @@ from omegaconf import MISSING
 
 from torchrl_surprise.envs.minigrid import MINIGRID_BACKENDS
 from torchrl_surprise.transforms import NORMALIZATIONS, STOCHASTICITY_LEVELS
-from torchrl_surprise.transforms.vae_surprise import GLOBAL_BONUSES
+from torchrl_surprise.transforms.vae_surprise import GLOBAL_BONUSES, NOVELD_NOVELTIES
 
 from .run import RESUME_MODES
 
@@ -115,7 +115,7 @@ LOGGER_BACKENDS: tuple[str, ...] = ("csv", "tensorboard", "wandb", "mlflow", "")
 DEVICES: tuple[str, ...] = ("cpu", "cuda", "auto")
 """``device`` of the MiniGrid recipe (auto: cuda when torch sees one, else cpu)."""
 # and those the library owns, taken from it: NORMALIZATIONS, GLOBAL_BONUSES,
-# MINIGRID_BACKENDS
+# NOVELD_NOVELTIES, MINIGRID_BACKENDS
 
 
 class Rule(NamedTuple):
@@ -316,6 +316,8 @@ class MiniGridVAEConfig(VAEConfig):
     """elliptical: the episodic term reads the posterior mean at unit length."""
     alpha: float = required(NON_NEGATIVE)
     """noveld: weight of novelty(s) in max(novelty(s') - alpha novelty(s), 0); >= 0."""
+    novelty: str = required(one_of(NOVELD_NOVELTIES))
+    """noveld: the VAE's novelty, neg_elbo (its negative ELBO) or kl (its KL)."""
     use_direction: bool = required()
     """The VAE reads the agent's direction as well as the image."""
     inverse_weight: float = required(NON_NEGATIVE)

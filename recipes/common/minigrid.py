@@ -102,13 +102,16 @@ def vae_variant_kwargs(variant: str, vae_cfg) -> dict:
     Examples:
         >>> vae_variant_kwargs("elliptical", {"ridge": 0.5})
         {'ridge': 0.5, 'global_bonus': 'none', 'unit_latent': False}
-        >>> vae_variant_kwargs("noveld", {"alpha": 0.25})
-        {'alpha': 0.25}
+        >>> vae_variant_kwargs("noveld", {"alpha": 0.25, "novelty": "kl"})
+        {'alpha': 0.25, 'novelty': 'kl'}
         >>> vae_variant_kwargs("kl", {"ridge": 0.5})
         {}
     """
     if variant == "noveld":
-        return {"alpha": vae_cfg.get("alpha", 0.5)}
+        return {
+            "alpha": vae_cfg.get("alpha", 0.5),
+            "novelty": vae_cfg.get("novelty", "neg_elbo"),
+        }
     if variant != "elliptical":
         return {}
     return {

@@ -16,6 +16,7 @@ from torchrl_surprise.transforms.noveld import NovelDTransform
 
 __all__ = [
     "GLOBAL_BONUSES",
+    "NOVELD_NOVELTIES",
     "VAEEllipticalTransform",
     "VAENegativeELBOTransform",
     "VAENovelDTransform",
@@ -163,6 +164,9 @@ class VAEPosteriorShiftTransform(VAESurpriseTransform):
 
 #: Accepted values of :class:`VAEEllipticalTransform`'s ``global_bonus``.
 GLOBAL_BONUSES = ("none", "kl")
+#: Accepted values of :class:`VAENovelDTransform`'s ``novelty``: the VAE's
+#: negative ELBO, its KL.
+NOVELD_NOVELTIES = ("neg_elbo", "kl")
 
 
 class VAEEllipticalTransform(VAESurpriseTransform):
@@ -317,6 +321,12 @@ class VAENovelDTransform(NovelDTransform):
     bonus is then close to ``(1 - alpha)`` times a constant on first visits, an
     episodic count, which is the control for what the VAE's training buys.
 
+    With ``novelty="kl"`` the novelty is the paper's surprise, ``KL(q(z|s) ||
+    N(0, I))`` (:meth:`StateVAE.kl <torchrl_surprise.modules.StateVAE.kl>`), in
+    place of the negative ELBO: the gain is then in how much the VAE encodes,
+    not in how badly it reconstructs, which a view it cannot reconstruct (a
+    noisy TV's cells) keeps high however often it is seen.
+
     Everything else is :class:`~torchrl_surprise.transforms.NovelDTransform`'s:
     ``alpha``, the first-visit indicator on ``visit_keys``, the per-env sets in
     ``visits`` (saved by ``state_dict``), the env path and the time-ordered
@@ -326,6 +336,10 @@ class VAENovelDTransform(NovelDTransform):
         vae (StateVAE): the state VAE (trained by ``VAELoss``).
         in_keys (sequence of NestedKey, optional): observation keys, in the order
             the VAE takes them. Defaults to ``vae.in_keys``.
+
+    Keyword Args:
+        novelty (str): ``"neg_elbo"`` (default: the VAE's negative ELBO) or
+            ``"kl"`` (its posterior's KL to the prior).
         **kwargs: see :class:`~torchrl_surprise.transforms.NovelDTransform`.
 
     Examples:
@@ -346,6 +360,9 @@ class VAENovelDTransform(NovelDTransform):
         >>> bonus = t(td)["next", "intrinsic_reward"][0, :, 0]
         >>> bool(bonus[0] > 0), float(bonus[1])  # s1 is new; s0 was seen
         (True, 0.0)
+        >>> kl = VAENovelDTransform(vae, in_keys=["observation"], novelty="kl")
+        >>> torch.allclose(kl.novelty(obs), vae.kl(obs))
+        True
     """
 
     model_attr = "vae"
@@ -354,6 +371,21 @@ class VAENovelDTransform(NovelDTransform):
         self,
         vae: StateVAE,
         in_keys: Sequence[NestedKey] | None = None,
+        *,
+        novelty: str = "neg_elbo",
         **kwargs,
     ):
+        if novelty not in NOVELD_NOVELTIES:
+            raise ValueError(
+                f"{type(self).__name__}: novelty must be one of "
+                f"{NOVELD_NOVELTIES}, got {novelty!r}."
+            )
         super().__init__(vae, in_keys, **kwargs)
+        self.novelty_kind = novelty
+
+    def novelty(self, *observations: torch.Tensor) -> torch.Tensor:
+        """``novelty(s)`` per state, ``[...]``: the VAE's negative ELBO, or its
+        KL with ``novelty="kl"``."""
+        if self.novelty_kind == "kl":
+            return self.vae.kl(*observations)
+        return self.vae.novelty(*observations)
