@@ -33,7 +33,9 @@ moving return first reached 0.9 of the oracle's.
 - ``targets.csv``: per task, the issue's targets for two candidates: the best
   VAE-based setting (names starting with ``vae``, the untrained controls
   included) and the best trained VAE (not ``*_untrained``), each the highest
-  IQM of its group, so chosen on the data it is judged on; whether it solves
+  IQM of its group among the settings with the most finished seeds, up to
+  ``--min-seeds`` (a screening seed does not displace a full pass), so
+  chosen on the data it is judged on; whether it solves
   the task; and against E3B and NovelD the probability that it is better (from
   the task's ``probability_of_improvement.csv``) with a verdict: ``better`` (the
   CI above 0.5), ``worse`` (below), ``level`` (the CI holds 0.5) or ``too few
@@ -391,20 +393,24 @@ def _verdict(
 
 
 #: The candidates ``targets.csv`` judges per task: a label and which settings
-#: compete (the best IQM among them is the candidate).
+#: compete (the best IQM among those with enough seeds is the candidate).
 CANDIDATES: tuple[tuple[str, str], ...] = (
     ("best VAE-based", "any setting named vae*, the untrained controls included"),
     ("best trained VAE", "the vae* settings whose VAE trains (not *_untrained)"),
 )
 
 
-def _candidates(scored: pd.DataFrame) -> dict[str, str]:
+def _candidates(scored: pd.DataFrame, min_seeds: int) -> dict[str, str]:
     vae = scored[scored.index.str.startswith(VAE_PREFIX)]
     trained = vae[~vae.index.str.endswith(UNTRAINED)]
-    return {
-        label: (group["iqm"].idxmax() if len(group) else "")
-        for (label, _), group in zip(CANDIDATES, (vae, trained))
-    }
+
+    def best(group: pd.DataFrame) -> str:
+        if not len(group):
+            return ""
+        enough = group["seeds"] >= min(min_seeds, group["seeds"].max())
+        return group[enough]["iqm"].idxmax()
+
+    return {label: best(group) for (label, _), group in zip(CANDIDATES, (vae, trained))}
 
 
 def targets(
@@ -424,7 +430,7 @@ def targets(
         ran = rows_of_task.set_index("setting")
         scored = ran.dropna(subset=["iqm"])
         normalized = bool((rows_of_task["metric"] == "return / oracle").all())
-        for label, best in _candidates(scored).items():
+        for label, best in _candidates(scored, min_seeds).items():
             out = {"task": task, "candidate": label, "setting": best}
             out["score"] = _score(ran, best) if best else ""
             if not best:
