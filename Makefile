@@ -33,7 +33,7 @@ docs: $(STAMP)
 # Every table and figure of docs/results recomputed from the committed per-run data
 # (each experiment's runs.csv, each heatmap summary's rows per run and layout; no
 # run directory or checkpoint needed), then the suite's table from its tasks'.
-SUITE_DIRS = $(filter-out %_16x128/,$(wildcard docs/results/suite_*/))
+SUITE_DIRS = $(filter-out %_16x128/ %_64x32/,$(wildcard docs/results/suite_*/))
 figures: $(STAMP)
 	$(PY) recipes/results/aggregate.py --all docs/results
 	$(PY) recipes/results/suite.py $(SUITE_DIRS) \

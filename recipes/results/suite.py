@@ -8,7 +8,7 @@ experiments' ``summary.csv`` and ``probability_of_improvement.csv`` and a table 
 published numbers, and writes the suite's tables::
 
     python recipes/results/suite.py docs/results/suite_keycorridor_s3r3 \\
-        docs/results/suite_doorkey16x16 --published docs/results/suite_published.csv \\
+        docs/results/suite_doorkey16x16_16x512 --published docs/results/suite_published.csv \\
         --out docs/results/suite
 
 **Score.** A run's score is its final train return divided by the oracle's where
