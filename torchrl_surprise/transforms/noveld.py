@@ -52,7 +52,7 @@ class NovelDTransform(IntrinsicRewardTransform):
     attribute that holds the model (its ``state_dict`` prefix), and the model
     gives ``novelty(*observations)`` and ``in_keys``
     (:class:`~torchrl_surprise.transforms.VAENovelDTransform`: the VAE's
-    negative ELBO).
+    negative ELBO or its KL).
 
     Args:
         rnd (RNDModel): the target and predictor (shared with the loss).

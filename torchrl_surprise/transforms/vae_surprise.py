@@ -306,7 +306,7 @@ class VAEEllipticalTransform(VAESurpriseTransform):
 
 
 class VAENovelDTransform(NovelDTransform):
-    """NovelD on the VAE: the gain in its negative ELBO, paid on first visits.
+    """NovelD on the VAE: the gain in its negative ELBO (or KL), paid on first visits.
 
     ``r_int(s, s') = max(novelty(s') - alpha * novelty(s), 0) * 1[s' is visited
     for the first time in this episode]``
