@@ -752,3 +752,37 @@ def test_envpool_runs_are_their_own_task_normalised_by_envpools_oracle(tmp_path)
     # one env id in two oracle tables is ambiguous: refused, naming the table
     with pytest.raises(ValueError, match="another table"):
         read_oracle(minigrid_oracle, minigrid_oracle)
+
+
+def test_label_keys_tell_apart_runs_of_one_setting(tmp_path, capsys):
+    # A sweep over a hyperparameter beside a named setting: the setting's label
+    # alone cannot tell its runs apart; --label-keys adds the key's value.
+    for num_envs, final in ((16, 1.0), (64, 0.0)):
+        config = {
+            "seed": 0,
+            "bonus": "vae",
+            "setting": "noveld",
+            "env": {"name": MINIGRID, "num_envs": num_envs},
+            "collector": {"total_frames": 10000},
+        }
+        raw = [(s, final * ORACLE_RETURN * s / 10000) for s in STEPS]
+        write_run(
+            tmp_path / "runs" / f"noveld_{num_envs}",
+            config,
+            ["+setting=noveld", "seed=0", f"env.num_envs={num_envs}"],
+            {"train/episode_return": raw[1:]},
+        )
+    argv = [str(tmp_path / "runs"), "--oracle", "none", "--reps", str(REPS)]
+    with pytest.raises(SystemExit):
+        main([*argv, "--out", str(tmp_path / "out")])
+    assert "--label-keys" in capsys.readouterr().err
+    out = tmp_path / "split"
+    assert main([*argv, "--out", str(out), "--label-keys", "env.num_envs"]) == 0
+    summary = read(out, "summary.csv").set_index("setting")
+    assert sorted(summary.index) == ["noveld,env.num_envs=16", "noveld,env.num_envs=64"]
+    assert summary.loc["noveld,env.num_envs=16", "train_return_mean"] == pytest.approx(
+        ORACLE_RETURN
+    )
+    assert summary.loc["noveld,env.num_envs=64", "train_return_mean"] == 0.0
+    with pytest.raises(ValueError, match="no 'collector.frames_per_env'"):
+        find_runs([tmp_path / "runs"], ["collector.frames_per_env"])

@@ -239,7 +239,19 @@ def _scalars_dir(run_dir: Path) -> Path | None:
     return found[0] if found else None
 
 
-def _read_run(run_dir: Path) -> RunInfo:
+def _config_value(config: Mapping, key: str, run_dir: Path):
+    node: object = config
+    for part in key.split("."):
+        if not isinstance(node, Mapping) or part not in node:
+            raise ValueError(
+                f"{run_dir}/config_resolved.yaml has no {key!r} (--label-keys "
+                "takes dotted keys of the runs' resolved config, e.g. env.num_envs)"
+            )
+        node = node[part]
+    return node
+
+
+def _read_run(run_dir: Path, label_keys: Sequence[str] = ()) -> RunInfo:
     from omegaconf import OmegaConf
 
     config = OmegaConf.to_container(OmegaConf.load(run_dir / "config_resolved.yaml"))
@@ -249,26 +261,36 @@ def _read_run(run_dir: Path) -> RunInfo:
     if task is None or seed is None:
         raise ValueError(f"{run_dir}/config_resolved.yaml has no env.name or no seed")
     total_frames = (config.get("collector") or {}).get("total_frames")
+    setting = setting_label(config, overrides)
+    for key in label_keys:
+        setting += f",{key}={_config_value(config, key, run_dir)}"
     return RunInfo(
         path=run_dir,
         task=task_label(config),
-        setting=setting_label(config, overrides),
+        setting=setting,
         seed=int(seed),
         total_frames=None if total_frames is None else int(total_frames),
         scalars_dir=_scalars_dir(run_dir),
     )
 
 
-def find_runs(paths: Sequence[str | os.PathLike]) -> list[RunInfo]:
+def find_runs(
+    paths: Sequence[str | os.PathLike], label_keys: Sequence[str] = ()
+) -> list[RunInfo]:
     """The run directories under ``paths`` (searched recursively), sorted.
 
     Args:
         paths: sweep directories, run directories, or any folders above them.
+        label_keys: dotted keys of the runs' resolved config whose values join
+            each run's setting label as ``,key=value`` (e.g. ``env.num_envs``):
+            runs of one named setting that differ in them (a sweep over a
+            hyperparameter beside ``+setting=...``) are then told apart.
 
     Raises:
         FileNotFoundError: a path does not exist, or no run directory (a folder
             holding ``config_resolved.yaml``) is under any of them.
-        ValueError: two run directories are the same task, setting and seed.
+        ValueError: two run directories are the same task, setting and seed, or
+            a run's config has no value for one of ``label_keys``.
 
     Examples:
         >>> import tempfile
@@ -288,7 +310,8 @@ def find_runs(paths: Sequence[str | os.PathLike]) -> list[RunInfo]:
             + ", ".join(str(p) for p in paths)
         )
     runs = sorted(
-        (_read_run(d) for d in run_dirs), key=lambda r: (r.task, r.setting, r.seed)
+        (_read_run(d, label_keys) for d in run_dirs),
+        key=lambda r: (r.task, r.setting, r.seed),
     )
     seen: dict[tuple[str, str, int], Path] = {}
     for run in runs:
@@ -296,7 +319,9 @@ def find_runs(paths: Sequence[str | os.PathLike]) -> list[RunInfo]:
         if key in seen:
             raise ValueError(
                 f"{seen[key]} and {run.path} are both task {run.task}, setting "
-                f"{run.setting}, seed {run.seed}: pass only one of them"
+                f"{run.setting}, seed {run.seed}: pass only one of them, or tell "
+                "them apart with --label-keys KEY (a config key whose value "
+                "differs between them, e.g. env.num_envs)"
             )
         seen[key] = run.path
     return runs
@@ -1484,6 +1509,14 @@ def _parser() -> argparse.ArgumentParser:
         metavar="TASK",
         help="keep only the runs of these tasks (env ids)",
     )
+    parser.add_argument(
+        "--label-keys",
+        nargs="+",
+        default=(),
+        metavar="KEY",
+        help="dotted config keys whose values join each run's setting label "
+        "(',KEY=value'), to tell apart runs of one setting that differ in them",
+    )
     parser.add_argument("--budget", type=int, help="frames of final performance")
     parser.add_argument(
         "--oracle",
@@ -1528,7 +1561,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 data = _read_runs_csv(args.from_data)
                 meta = _read_meta_beside(args.from_data)
             else:
-                runs = find_runs(args.runs)
+                runs = find_runs(args.runs, args.label_keys)
                 data = extract_run_data(runs, args.max_points)
                 meta = runs_metadata(runs)
                 if args.from_data is not None:
