@@ -81,6 +81,29 @@ PROFILES = {
         MINIGRID_STAGES,
         ["algo=ppo", "env.backend=envpool", "collector.total_frames=40960"],
     ),
+    # the suite's peers (docs/results.rst, "The hard-exploration suite")
+    "ppo-e3b-envpool": (
+        MINIGRID,
+        MINIGRID_STAGES,
+        [
+            "algo=ppo",
+            "+setting=e3b",
+            "env.backend=envpool",
+            "env.name=MiniGrid-KeyCorridorS3R3-v0",
+            "collector.total_frames=40960",
+        ],
+    ),
+    "ppo-noveld-envpool": (
+        MINIGRID,
+        MINIGRID_STAGES,
+        [
+            "algo=ppo",
+            "+setting=noveld",
+            "env.backend=envpool",
+            "env.name=MiniGrid-KeyCorridorS3R3-v0",
+            "collector.total_frames=40960",
+        ],
+    ),
     "a2c-none-envpool": (
         MINIGRID,
         MINIGRID_STAGES,
