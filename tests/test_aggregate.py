@@ -775,7 +775,7 @@ def test_label_keys_tell_apart_runs_of_one_setting(tmp_path, capsys):
     argv = [str(tmp_path / "runs"), "--oracle", "none", "--reps", str(REPS)]
     with pytest.raises(SystemExit):
         main([*argv, "--out", str(tmp_path / "out")])
-    assert "--label-keys" in capsys.readouterr().err
+    assert "tell them apart with --label-keys" in capsys.readouterr().err
     out = tmp_path / "split"
     assert main([*argv, "--out", str(out), "--label-keys", "env.num_envs"]) == 0
     summary = read(out, "summary.csv").set_index("setting")
@@ -786,3 +786,24 @@ def test_label_keys_tell_apart_runs_of_one_setting(tmp_path, capsys):
     assert summary.loc["noveld,env.num_envs=64", "train_return_mean"] == 0.0
     with pytest.raises(ValueError, match="no 'collector.frames_per_env'"):
         find_runs([tmp_path / "runs"], ["collector.frames_per_env"])
+    with pytest.raises(ValueError, match="'env' is a dict, not a value"):
+        find_runs([tmp_path / "runs"], ["env"])
+    # a key the label already holds is not added twice
+    runs = find_runs([tmp_path / "runs"], ["env.num_envs", "env.num_envs"])
+    assert [run.setting for run in runs] == [
+        "noveld,env.num_envs=16",
+        "noveld,env.num_envs=64",
+    ]
+    # labels come from run directories: not with --from-data alone
+    with pytest.raises(SystemExit):
+        main(
+            [
+                "--from-data",
+                str(out / "runs.csv"),
+                "--out",
+                str(tmp_path / "x"),
+                "--label-keys",
+                "env.num_envs",
+            ]
+        )
+    assert "--label-keys labels the runs of run directories" in capsys.readouterr().err

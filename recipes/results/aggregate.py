@@ -240,6 +240,7 @@ def _scalars_dir(run_dir: Path) -> Path | None:
 
 
 def _config_value(config: Mapping, key: str, run_dir: Path):
+    """The value of the dotted ``key`` in a run's resolved config (a scalar)."""
     node: object = config
     for part in key.split("."):
         if not isinstance(node, Mapping) or part not in node:
@@ -248,6 +249,12 @@ def _config_value(config: Mapping, key: str, run_dir: Path):
                 "takes dotted keys of the runs' resolved config, e.g. env.num_envs)"
             )
         node = node[part]
+    if isinstance(node, (Mapping, list)):
+        raise ValueError(
+            f"{run_dir}/config_resolved.yaml: {key!r} is a "
+            f"{type(node).__name__}, not a value (--label-keys takes keys of "
+            "single values, e.g. env.num_envs)"
+        )
     return node
 
 
@@ -263,7 +270,9 @@ def _read_run(run_dir: Path, label_keys: Sequence[str] = ()) -> RunInfo:
     total_frames = (config.get("collector") or {}).get("total_frames")
     setting = setting_label(config, overrides)
     for key in label_keys:
-        setting += f",{key}={_config_value(config, key, run_dir)}"
+        entry = f"{key}={_config_value(config, key, run_dir)}"
+        if entry not in setting.split(","):  # a label of overrides may hold it
+            setting += f",{entry}"
     return RunInfo(
         path=run_dir,
         task=task_label(config),
@@ -1515,7 +1524,8 @@ def _parser() -> argparse.ArgumentParser:
         default=(),
         metavar="KEY",
         help="dotted config keys whose values join each run's setting label "
-        "(',KEY=value'), to tell apart runs of one setting that differ in them",
+        "(',KEY=value'), to tell apart runs of one setting that differ in them "
+        "(--settings then names the labels with them); with run directories",
     )
     parser.add_argument("--budget", type=int, help="frames of final performance")
     parser.add_argument(
@@ -1539,6 +1549,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     """The command line (see the module description); returns the exit status."""
     parser = _parser()
     args = parser.parse_args(argv)
+    if args.label_keys and not args.runs:
+        parser.error(
+            "--label-keys labels the runs of run directories: give them (the "
+            "labels of --from-data and --all are those their runs.csv holds)"
+        )
     if args.all is not None:
         if args.runs or args.from_data is not None or args.out is not None:
             parser.error("--all takes no run directories, --from-data or --out")
