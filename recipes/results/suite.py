@@ -209,7 +209,10 @@ def read_experiments(
             "a task must come from one env id of one experiment; these come from "
             f"several: {shared}"
         )
-    return summary, pd.concat(probabilities, ignore_index=True)
+    # an experiment of one setting has no comparison: its empty table adds nothing
+    # (and pandas no longer wants all-NA frames in a concat)
+    compared = [table for table in probabilities if not table.empty]
+    return summary, pd.concat(compared or probabilities, ignore_index=True)
 
 
 def _is_true(value) -> bool:
