@@ -239,29 +239,34 @@ def _scalars_dir(run_dir: Path) -> Path | None:
     return found[0] if found else None
 
 
-def _config_value(config: Mapping, key: str, run_dir: Path):
-    """The value of the dotted ``key`` in a run's resolved config (a scalar)."""
-    node: object = config
-    for part in key.split("."):
-        if not isinstance(node, Mapping) or part not in node:
-            raise ValueError(
-                f"{run_dir}/config_resolved.yaml has no {key!r} (--label-keys "
-                "takes dotted keys of the runs' resolved config, e.g. env.num_envs)"
-            )
-        node = node[part]
-    if isinstance(node, (Mapping, list)):
+_ABSENT = object()
+
+
+def _config_value(config, key: str, run_dir: Path):
+    """The value of the dotted ``key`` in a run's resolved config (an OmegaConf
+    config), which must be a single value."""
+    from omegaconf import OmegaConf
+
+    value = OmegaConf.select(config, key, default=_ABSENT)
+    if value is _ABSENT:
         raise ValueError(
-            f"{run_dir}/config_resolved.yaml: {key!r} is a "
-            f"{type(node).__name__}, not a value (--label-keys takes keys of "
-            "single values, e.g. env.num_envs)"
+            f"{run_dir}/config_resolved.yaml has no {key!r} (--label-keys "
+            "takes dotted keys of the runs' resolved config, e.g. env.num_envs)"
         )
-    return node
+    if OmegaConf.is_config(value):
+        kind = "dict" if OmegaConf.is_dict(value) else "list"
+        raise ValueError(
+            f"{run_dir}/config_resolved.yaml: {key!r} is a {kind}, not a value "
+            "(--label-keys takes keys of single values, e.g. env.num_envs)"
+        )
+    return value
 
 
 def _read_run(run_dir: Path, label_keys: Sequence[str] = ()) -> RunInfo:
     from omegaconf import OmegaConf
 
-    config = OmegaConf.to_container(OmegaConf.load(run_dir / "config_resolved.yaml"))
+    loaded = OmegaConf.load(run_dir / "config_resolved.yaml")
+    config = OmegaConf.to_container(loaded)
     overrides = read_overrides(run_dir)
     task = (config.get("env") or {}).get("name")
     seed = config.get("seed")
@@ -270,7 +275,7 @@ def _read_run(run_dir: Path, label_keys: Sequence[str] = ()) -> RunInfo:
     total_frames = (config.get("collector") or {}).get("total_frames")
     setting = setting_label(config, overrides)
     for key in label_keys:
-        entry = f"{key}={_config_value(config, key, run_dir)}"
+        entry = f"{key}={_config_value(loaded, key, run_dir)}"
         if entry not in setting.split(","):  # a label of overrides may hold it
             setting += f",{entry}"
     return RunInfo(
