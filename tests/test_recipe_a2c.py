@@ -114,13 +114,41 @@ def test_every_bonus_runs_end_to_end(tmp_path, request, bonus):
         assert not (run_dir / "checkpoints").exists()
 
 
-@pytest.mark.parametrize("variant", ["neg_elbo", "info_gain", "lagged_kl", "noveld"])
-def test_vae_variants_run_end_to_end(tmp_path, variant):
-    run_dir = tmp_path / variant
-    overrides = [f"intrinsic.vae.variant={variant}", "intrinsic.vae.lag_updates=2"]
-    if variant in ("info_gain", "lagged_kl"):  # every rollout (refused otherwise)
-        overrides.append("intrinsic.update_every=1")
-    run_recipe(run_dir, "bonus=vae", *overrides, "collector.total_frames=256")
+VARIANTS = ["neg_elbo", "info_gain", "lagged_kl", "noveld"]
+
+
+@pytest.fixture(scope="module")
+def vae_variants(tmp_path_factory) -> Path:
+    """A sweep over the VAE's variants, its runs in ``<sweep>/<variant>``, one after
+    the other in one process (start-up is most of a tiny run's time). Every variant
+    trains the VAE on every batch: info_gain and lagged_kl refuse a longer period."""
+
+    def make(sweep_dir: Path) -> subprocess.CompletedProcess:
+        cmd = [
+            sys.executable,
+            str(MAIN),
+            "-m",
+            f"hydra.sweep.dir={sweep_dir}",
+            "hydra.sweep.subdir=${intrinsic.vae.variant}",
+            "hydra.launcher.n_jobs=1",
+            *TINY,
+            "bonus=vae",
+            f"intrinsic.vae.variant={','.join(VARIANTS)}",
+            "intrinsic.vae.lag_updates=2",
+            "intrinsic.update_every=1",
+            "collector.total_frames=256",
+        ]
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+        if proc.returncode != 0:
+            raise AssertionError(f"the sweep failed:\n{proc.stderr[-3000:]}")
+        return proc
+
+    return shared_run(tmp_path_factory, "a2c_vae_variants", make).path
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_vae_variants_run_end_to_end(vae_variants, variant):
+    run_dir = vae_variants / variant
     _, raw = read_scalar_csv(run_dir / "logs/a2c/scalars/train/intrinsic_reward.csv")
     assert torch.isfinite(torch.as_tensor(raw)).all() and (raw > 0).any()
     # the variant's own state is in the checkpoint: NovelD's first-visit sets,

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from _recipe_run import differing_logs, kill_after_checkpoint, shared_run
+from _recipe_run import SharedRun, differing_logs, kill_after_checkpoint, shared_run
 
 from common.run import load_checkpoint, read_scalar_csv
 
@@ -50,11 +50,38 @@ def vae_run(tmp_path_factory) -> Path:
     return shared_run(tmp_path_factory, "ppo_vae", make).path
 
 
-@pytest.mark.parametrize("bonus", ["none", "vae", "icm", "rnd", "e3b", "noveld"])
-def test_every_bonus_runs_end_to_end(tmp_path, bonus):
-    run_dir = tmp_path / bonus
-    proc = run_recipe(run_dir, f"bonus={bonus}", "collector.total_frames=256")
-    assert "Learning curve:" in proc.stdout
+BONUSES = ["none", "vae", "icm", "rnd", "e3b", "noveld"]
+
+
+@pytest.fixture(scope="module")
+def every_bonus(tmp_path_factory) -> SharedRun:
+    """A sweep over every bonus, its runs in ``<sweep>/<bonus>``: one process runs
+    them one after the other (start-up is most of a tiny run's time)."""
+
+    def make(sweep_dir: Path) -> subprocess.CompletedProcess:
+        cmd = [
+            sys.executable,
+            str(MAIN),
+            "-m",
+            f"hydra.sweep.dir={sweep_dir}",
+            "hydra.sweep.subdir=${bonus}",
+            "hydra.launcher.n_jobs=1",
+            *TINY,
+            f"bonus={','.join(BONUSES)}",
+            "collector.total_frames=256",
+        ]
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+        if proc.returncode != 0:
+            raise AssertionError(f"the sweep failed:\n{proc.stderr[-3000:]}")
+        return proc
+
+    return shared_run(tmp_path_factory, "ppo_every_bonus", make)
+
+
+@pytest.mark.parametrize("bonus", BONUSES)
+def test_every_bonus_runs_end_to_end(every_bonus, bonus):
+    run_dir = every_bonus.path / bonus
+    assert f"Learning curve: {run_dir / 'learning_curve.png'}" in every_bonus.stdout
     assert (run_dir / "learning_curve.png").stat().st_size > 0
     scalars = run_dir / "logs" / "ppo" / "scalars"
     steps, fps = read_scalar_csv(scalars / "time" / "fps.csv")
