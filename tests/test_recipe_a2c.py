@@ -13,6 +13,7 @@ import pandas as pd
 import pytest
 import torch
 from _recipe_run import (
+    SharedRun,
     differing_logs,
     kill_after_checkpoint,
     load_recipe_utils,
@@ -74,19 +75,42 @@ def rnd_run(tmp_path_factory):
     return shared_run(tmp_path_factory, "a2c_rnd", lambda d: run_recipe(d, *RND_RUN))
 
 
+@pytest.fixture(scope="module")
+def every_bonus(tmp_path_factory) -> SharedRun:
+    """A sweep over the bonuses but RND (its run is ``rnd_run``), its runs in
+    ``<sweep>/<bonus>``, one after the other in one process (start-up is most of a
+    tiny run's time). They keep their periodic checkpoints (points of training);
+    the RND run keeps only its last."""
+
+    def make(sweep_dir: Path) -> subprocess.CompletedProcess:
+        cmd = [
+            sys.executable,
+            str(MAIN),
+            "-m",
+            f"hydra.sweep.dir={sweep_dir}",
+            "hydra.sweep.subdir=${bonus}",
+            "hydra.launcher.n_jobs=1",
+            *TINY,
+            "bonus=none,vae,icm",
+            "checkpoint.keep=true",
+            "collector.total_frames=512",
+        ]
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+        if proc.returncode != 0:
+            raise AssertionError(f"the sweep failed:\n{proc.stderr[-3000:]}")
+        return proc
+
+    return shared_run(tmp_path_factory, "a2c_every_bonus", make)
+
+
 @pytest.mark.parametrize("bonus", ["none", "vae", "icm", "rnd"])
-def test_every_bonus_runs_end_to_end(tmp_path, request, bonus):
-    run_dir = tmp_path / bonus
-    # the VAE run also keeps its periodic checkpoints (points of training)
-    keep = ["checkpoint.keep=true"] if bonus == "vae" else []
-    frames = 1024 if bonus == "rnd" else 512
-    if bonus == "rnd":
-        shared = request.getfixturevalue("rnd_run")
-        run_dir, stdout = shared.path, shared.stdout
-    else:
-        total = f"collector.total_frames={frames}"
-        stdout = run_recipe(run_dir, f"bonus={bonus}", total, *keep).stdout
-    assert "Learning curve:" in stdout
+def test_every_bonus_runs_end_to_end(request, bonus):
+    keep = bonus != "rnd"
+    frames = 512 if keep else 1024
+    shared = request.getfixturevalue("every_bonus" if keep else "rnd_run")
+    run_dir = shared.path / bonus if keep else shared.path
+    stdout = shared.stdout
+    assert f"Learning curve: {run_dir / 'learning_curve.png'}" in stdout
     assert (run_dir / "learning_curve.png").stat().st_size > 0
     assert (run_dir / "config_resolved.yaml").exists()
     scalars = run_dir / "logs" / "a2c" / "scalars"
@@ -99,18 +123,20 @@ def test_every_bonus_runs_end_to_end(tmp_path, request, bonus):
         assert list((scalars / "bonus").iterdir()), "bonus-model losses are logged"
     ckpt = load_checkpoint(run_dir / "checkpoint.torchrl")
     assert ckpt["frames"] == frames
-    kept = sorted((run_dir / "checkpoints").glob("*.torchrl")) if keep else []
     if keep:
         # one per checkpoint.interval_frames (128), each at its own frame count
+        kept = sorted((run_dir / "checkpoints").glob("*.torchrl"))
         assert [p.name for p in kept] == [
             f"checkpoint-{n:012d}.torchrl" for n in (128, 256, 384, 512)
         ]
+        assert load_checkpoint(kept[1])["frames"] == 256
+    if bonus == "vae":
         _, _, frames = load_bonus_transform(kept[1])
         assert frames == 256
         early = load_checkpoint(kept[0])["bonus_transform"]
         late = ckpt["bonus_transform"]
         assert any(not torch.equal(early[k], late[k]) for k in early if "vae." in k)
-    else:
+    if not keep:
         assert not (run_dir / "checkpoints").exists()
 
 
@@ -438,10 +464,9 @@ def group_alive(pgid: int) -> bool:
 @pytest.mark.parametrize(
     "override, message",
     [
-        # refused by the config's validation (each setting's refusal, in-process:
-        # test_configs.py)
-        ("bonus=banana", "bonus must be one of 'none', 'vae', 'icm', 'rnd'"),
-        # refused by what the run builds or finds
+        # refused by what the run builds or finds (a refusal of the config's
+        # validation on the command line: test_configs.py, in-process: each
+        # setting's)
         ("env.name=MiniGrid-NoSuchEnv-v0", "MiniGrid-NoSuchEnv-v0"),
         ("resume=true", "no checkpoint"),
     ],
