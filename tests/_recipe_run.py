@@ -7,6 +7,7 @@ import os
 import shutil
 import signal
 import subprocess
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -25,6 +26,33 @@ def load_recipe_utils(recipe_dir: Path):
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def run_sweep(
+    main: Path, sweep_dir: Path, subdir: str, *overrides: str
+) -> subprocess.CompletedProcess:
+    """Runs the recipe ``main`` as a sweep (``-m``) over ``overrides``, its jobs one
+    after the other in one process (a recipe's start-up is most of a tiny run's
+    time), each in ``<sweep_dir>/<subdir>`` (an interpolation: ``${bonus}``).
+
+    Raises:
+        AssertionError: the sweep failed (its output's end is in the message).
+    """
+    cmd = [
+        sys.executable,
+        str(main),
+        "-m",
+        f"hydra.sweep.dir={sweep_dir}",
+        f"hydra.sweep.subdir={subdir}",
+        "hydra.launcher.n_jobs=1",
+        *overrides,
+    ]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    if proc.returncode != 0:
+        raise AssertionError(
+            f"the sweep failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}"
+        )
+    return proc
 
 
 def wait_for_checkpoint(ckpt_path: Path, min_frames: int, timeout: float = 120):

@@ -9,7 +9,13 @@ from pathlib import Path
 
 import pytest
 import torch
-from _recipe_run import SharedRun, differing_logs, kill_after_checkpoint, shared_run
+from _recipe_run import (
+    SharedRun,
+    differing_logs,
+    kill_after_checkpoint,
+    run_sweep,
+    shared_run,
+)
 
 from common.run import load_checkpoint, read_scalar_csv
 
@@ -59,21 +65,10 @@ def every_bonus(tmp_path_factory) -> SharedRun:
     them one after the other (start-up is most of a tiny run's time)."""
 
     def make(sweep_dir: Path) -> subprocess.CompletedProcess:
-        cmd = [
-            sys.executable,
-            str(MAIN),
-            "-m",
-            f"hydra.sweep.dir={sweep_dir}",
-            "hydra.sweep.subdir=${bonus}",
-            "hydra.launcher.n_jobs=1",
-            *TINY,
-            f"bonus={','.join(BONUSES)}",
-            "collector.total_frames=256",
-        ]
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
-        if proc.returncode != 0:
-            raise AssertionError(f"the sweep failed:\n{proc.stderr[-3000:]}")
-        return proc
+        bonuses = f"bonus={','.join(BONUSES)}"
+        return run_sweep(
+            MAIN, sweep_dir, "${bonus}", *TINY, bonuses, "collector.total_frames=256"
+        )
 
     return shared_run(tmp_path_factory, "ppo_every_bonus", make)
 
@@ -99,11 +94,12 @@ def test_every_bonus_runs_end_to_end(every_bonus, bonus):
 
 
 def test_same_seed_same_logs_another_seed_differs(tmp_path, vae_run):
-    run_recipe(tmp_path / "again", *VAE_RUN)
-    assert differing_logs(vae_run, tmp_path / "again") == []
-    run_recipe(tmp_path / "other", *VAE_RUN[:-1], "seed=4")
+    # Again as two jobs of one sweep: the first job leaves nothing to the second.
+    seeds = [*(a for a in VAE_RUN if not a.startswith("seed=")), "seed=3,4"]
+    run_sweep(MAIN, tmp_path, "${seed}", *TINY, *seeds)
+    assert differing_logs(vae_run, tmp_path / "3") == []
     assert "logs/ppo/scalars/train/loss_critic.csv" in differing_logs(
-        vae_run, tmp_path / "other"
+        vae_run, tmp_path / "4"
     )
 
 
