@@ -20,12 +20,14 @@ train: $(STAMP)
 	$(PY) recipes/minigrid/main.py eval.video=true $(ARGS)
 
 # The suite on TEST_WORKERS processes (pytest-xdist; 2 for the project's 2-core
-# machine; TEST_WORKERS=0 runs it in one process); the 15 slowest tests are listed.
+# machine; TEST_WORKERS=0 runs it in one process), an idle worker taking queued
+# tests from a busy one (the recipe tests take seconds, most others milliseconds);
+# the 15 slowest tests are listed.
 TEST_WORKERS ?= 2
 test: $(STAMP)
 	$(PY) -m ruff check .
 	$(PY) -m ruff format --check .
-	$(PY) -m pytest -n $(TEST_WORKERS) --durations=15 $(ARGS)
+	$(PY) -m pytest -n $(TEST_WORKERS) --dist worksteal --durations=15 $(ARGS)
 
 docs: $(STAMP)
 	$(PY) -m sphinx -W --keep-going -b html docs docs/_build/html
