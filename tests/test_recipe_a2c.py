@@ -345,8 +345,15 @@ def test_resume_refuses_a_changed_experiment_and_never_overwrites_a_run(tmp_path
     )
     assert proc.returncode != 0 and "already holds a checkpoint" in proc.stderr
     assert load_checkpoint(run_dir / "checkpoint.torchrl")["frames"] == 128
-    # What does not change the experiment may change: longer, other logging.
-    run_recipe(run_dir, "bonus=vae", "collector.total_frames=256", "eval.episodes=2")
+    # What does not change the experiment may change: longer, other logging, the
+    # name of the experiment the run is filed under.
+    run_recipe(
+        run_dir,
+        "bonus=vae",
+        "collector.total_frames=256",
+        "eval.episodes=2",
+        "experiment_name=renamed",
+    )
     assert load_checkpoint(run_dir / "checkpoint.torchrl")["frames"] == 256
 
 

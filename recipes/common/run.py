@@ -832,6 +832,7 @@ class RunCheckpoint:
 
 RESUMABLE_CHANGES: tuple[str, ...] = (
     "resume",
+    "experiment_name",
     "torch_threads",
     "collector.total_frames",
     "eval",
@@ -841,8 +842,10 @@ RESUMABLE_CHANGES: tuple[str, ...] = (
 )
 """Config entries (and sections) that may change when a run resumes.
 
-They decide how long a run goes on and what it reports, not what it learns; any
-other difference between the checkpoint's config and the resumed one is refused.
+They decide how long a run goes on, what it reports and under which experiment's
+folder it is found (``experiment_name``: runs moved into a renamed experiment
+resume there), not what it learns; any other difference between the
+checkpoint's config and the resumed one is refused.
 """
 
 RESUME_MODES: tuple[str, ...] = ("auto", "true", "false")
