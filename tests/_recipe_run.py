@@ -55,6 +55,15 @@ def run_sweep(
     return proc
 
 
+def assert_resume_refused(proc: subprocess.CompletedProcess, *changes: str) -> None:
+    """``proc`` refused to resume a changed experiment, naming each of ``changes``."""
+    assert proc.returncode != 0 and "the experiment changed" in proc.stderr, (
+        proc.stderr[-3000:]
+    )
+    missing = [change for change in changes if change not in proc.stderr]
+    assert not missing, f"the refusal does not name {missing}:\n{proc.stderr[-3000:]}"
+
+
 def wait_for_checkpoint(ckpt_path: Path, min_frames: int, timeout: float = 120):
     """Waits until the checkpoint at ``ckpt_path`` holds at least ``min_frames``."""
     deadline = time.time() + timeout
