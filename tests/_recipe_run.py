@@ -32,8 +32,10 @@ def run_sweep(
     main: Path, sweep_dir: Path, subdir: str, *overrides: str
 ) -> subprocess.CompletedProcess:
     """Runs the recipe ``main`` as a sweep (``-m``) over ``overrides``, its jobs one
-    after the other in one process (a recipe's start-up is most of a tiny run's
-    time), each in ``<sweep_dir>/<subdir>`` (an interpolation: ``${bonus}``).
+    after the other in one process (``hydra.launcher.n_jobs=1``: joblib runs them
+    in the sweep's process; a recipe's start-up is most of a tiny run's time), each
+    in ``<sweep_dir>/<subdir>`` (an interpolation: ``${bonus}``; a boolean reads
+    ``True`` or ``False``). Hydra's sweeper keeps the order of each list.
 
     Raises:
         AssertionError: the sweep failed (its output's end is in the message).

@@ -11,7 +11,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "torchrl_surprise"
 
 
 def test_the_core_imports_no_env_package_and_no_recipe_tooling():
-    # One interpreter for every module: each is checked, and named, on its own.
+    # One interpreter checks every module; a failure names each one imported.
     modules = ["minigrid", "hydra", "omegaconf", "matplotlib", "pandas", "rliable"]
     code = (
         "import sys, torchrl_surprise, torchrl_surprise.modules, "

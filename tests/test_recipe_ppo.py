@@ -94,8 +94,9 @@ def test_every_bonus_runs_end_to_end(every_bonus, bonus):
 
 
 def test_same_seed_same_logs_another_seed_differs(tmp_path, vae_run):
-    # Again as two jobs of one sweep: the first job leaves nothing to the second.
-    seeds = [*(a for a in VAE_RUN if not a.startswith("seed=")), "seed=3,4"]
+    # Again as the second job of a sweep: the first job (another seed) leaves
+    # nothing to it that would change what it logs.
+    seeds = [*(a for a in VAE_RUN if not a.startswith("seed=")), "seed=4,3"]
     run_sweep(MAIN, tmp_path, "${seed}", *TINY, *seeds)
     assert differing_logs(vae_run, tmp_path / "3") == []
     assert "logs/ppo/scalars/train/loss_critic.csv" in differing_logs(

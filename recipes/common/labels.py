@@ -32,6 +32,7 @@ _NOT_SETTING = {
     "env.name",
     "env.backend",
     "experiment",
+    "experiment_name",
     "resume",
     "resume_without_logs",
     "torch_threads",
@@ -70,7 +71,7 @@ def setting_label(config: Mapping, overrides: Sequence[str] | None) -> str:
     ``,env.stochasticity=L`` for a run at a noise level ``L`` other than 0: the
     same setting at another level is another point of Figure 2); else the
     Hydra overrides minus those naming the run or how it ran (``seed``,
-    ``env.name``, ``+experiment``, ``resume``, ``resume_without_logs``,
+    ``env.name``, ``+experiment``, ``experiment_name``, ``resume``, ``resume_without_logs``,
     ``torch_threads``, ``device``, ``hydra.*``) and those of what it reports or how
     it saves (``logger.*``, ``eval.*``, ``checkpoint.*``), sorted and joined with
     ``,``; else the config's ``bonus``.

@@ -842,10 +842,11 @@ RESUMABLE_CHANGES: tuple[str, ...] = (
 )
 """Config entries (and sections) that may change when a run resumes.
 
-They decide how long a run goes on, what it reports and under which experiment's
-folder it is found (``experiment_name``: runs moved into a renamed experiment
-resume there), not what it learns; any other difference between the
-checkpoint's config and the resumed one is refused.
+They decide how long a run goes on, what it reports and where it is found
+(``experiment_name``: a sweep's runs moved into the folder of an experiment
+config renamed since resume there; a name given on the command line is also
+part of each run folder's name), not what it learns; any other difference
+between the checkpoint's config and the resumed one is refused.
 """
 
 RESUME_MODES: tuple[str, ...] = ("auto", "true", "false")

@@ -51,8 +51,8 @@ the files of TorchRL's ``CSVLogger``, ``<run>/logs/<algo>/scalars/<group>/<name>
 (rows ``step,value``, the step in environment frames). The **task** of a run is
 ``env.name``, as ``<env id>@envpool`` for a run on envpool (:func:`task_label`); its **setting** is the config's ``setting`` when that is a non-empty
 string, else the Hydra overrides of ``.hydra/overrides.yaml`` minus ``seed``,
-``env.name``, ``+experiment``, ``resume``, ``resume_without_logs``,
-``torch_threads``, ``hydra.*``, ``logger.*``, ``eval.*`` and ``checkpoint.*`` (they
+``env.name``, ``+experiment``, ``experiment_name``, ``resume``,
+``resume_without_logs``, ``torch_threads``, ``hydra.*``, ``logger.*``, ``eval.*`` and ``checkpoint.*`` (they
 name the run or change what it reports, not what it learns), sorted and joined
 with ``,`` (see :func:`setting_label`), else the ``bonus``. A step logged twice (a
 resumed run) keeps its last value; non-finite values (a moving mean before the
