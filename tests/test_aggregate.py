@@ -170,6 +170,24 @@ def test_final_iqm_is_the_mean_of_the_middle_two_normalised_seeds(sweep):
     assert pd.isna(row["eval_success_iqm"]) and row["eval_success_seeds"] == 0
 
 
+def test_final_scores_are_the_per_seed_values_the_summary_aggregates(sweep):
+    finals = read(sweep["out"], "final_scores.csv")
+    train = finals[finals["metric"] == "train/episode_return"]
+    vae = train[train["setting"] == "bonus=vae,intrinsic.coef=0.1"]
+    # one row per seed, normalised, read at the budget
+    assert list(vae["seed"]) == [0, 1, 2, 3]
+    assert list(vae["value"]) == pytest.approx(VAE_FINALS)
+    assert (vae["frames"] == 10000).all() and (vae["budget"] == 10000).all()
+    # HalfCheetah's budget is its shortest run's 6000 frames: seed 0 ran on to
+    # 10000 and is read at 6000, unnormalised (100 and 200 per 1000 frames)
+    cheetah = train[train["setting"] == "cheetah_vae"]
+    assert list(cheetah["frames"]) == [6000, 6000]
+    assert list(cheetah["value"]) == pytest.approx([600.0, 1200.0])
+    row = summary_row(sweep["out"], MINIGRID, "bonus=vae,intrinsic.coef=0.1")
+    assert row["train_return_seeds"] == len(vae)
+    assert row["train_return_mean"] == pytest.approx(vae["value"].mean(), abs=1e-4)
+
+
 def test_oracle_normalises_only_the_tasks_it_knows(sweep):
     row = summary_row(sweep["out"], MINIGRID, "bonus=vae,intrinsic.coef=0.1")
     assert bool(row["normalized"]) and row["oracle_return"] == ORACLE_RETURN
@@ -250,6 +268,7 @@ def test_from_data_regenerates_identical_tables(sweep, tmp_path):
     assert np.random.rand() == expected
     for name in (
         "summary.csv",
+        "final_scores.csv",
         "frames_to_threshold.csv",
         "probability_of_improvement.csv",
     ):

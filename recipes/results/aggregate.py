@@ -91,6 +91,10 @@ output say.
   first frame at which the normalised ``train/episode_return`` reached ``f``,
   counting a seed that never did (up to the budget) as infinitely late, so it reads
   ``not reached`` when half the seeds or more never got there.
+- ``final_scores.csv``: per run, the scores ``summary.csv`` aggregates: ``task,
+  setting, seed, metric, budget, frames, value``, each metric's value at its last
+  logged step at or before the budget (``frames``), returns divided by the oracle's
+  (:func:`final_scores`). A report quoting one seed's score reads it here.
 - ``frames_to_threshold.csv``: per seed, ``task, setting, seed, fraction, frames,
   searched_to``; ``frames`` is empty when the fraction was not reached by
   ``searched_to`` (the run's last frame or the budget, whichever is first).
@@ -1442,7 +1446,7 @@ def aggregate(
     """Writes every table and figure computed from the per-run data into ``out``.
 
     ``summary.csv``, ``report.csv`` (its short form, for reports),
-    ``frames_to_threshold.csv``, ``probability_of_improvement.csv``,
+    ``final_scores.csv`` (the per-run scores it aggregates), ``frames_to_threshold.csv``, ``probability_of_improvement.csv``,
     ``curves.png`` and ``performance_profiles.png`` (see the module description),
     and ``levels.png`` when settings were run at several noise levels.
 
@@ -1454,6 +1458,7 @@ def aggregate(
     oracle = dict(oracle or {})
     tables = {
         "summary.csv": summarize(data, oracle, budget, reps, seed, meta),
+        "final_scores.csv": final_scores(data, oracle, budget),
         "frames_to_threshold.csv": frames_to_threshold(data, oracle, budget),
         "probability_of_improvement.csv": improvement_probabilities(
             data, oracle, budget, reps, seed
