@@ -1446,7 +1446,8 @@ def aggregate(
     """Writes every table and figure computed from the per-run data into ``out``.
 
     ``summary.csv``, ``report.csv`` (its short form, for reports),
-    ``final_scores.csv`` (the per-run scores it aggregates), ``frames_to_threshold.csv``, ``probability_of_improvement.csv``,
+    ``final_scores.csv`` (the per-run scores it aggregates),
+    ``frames_to_threshold.csv``, ``probability_of_improvement.csv``,
     ``curves.png`` and ``performance_profiles.png`` (see the module description),
     and ``levels.png`` when settings were run at several noise levels.
 
