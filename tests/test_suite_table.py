@@ -14,13 +14,21 @@ the budget.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pandas as pd
 import pytest
 
 from results.aggregate import main as aggregate_main
-from results.suite import SuiteInputError, main, read_published, short_task, write_suite
+from results.suite import (
+    MIN_SEEDS,
+    SuiteInputError,
+    main,
+    read_published,
+    short_task,
+    write_suite,
+)
 
 S3R3, D16 = "MiniGrid-KeyCorridorS3R3-v0@envpool", "MiniGrid-DoorKey-16x16-v0@envpool"
 ORACLE = {S3R3: 0.5}
@@ -222,6 +230,48 @@ def test_fewer_seeds_than_asked_for_are_too_few(suite, tmp_path):
     assert trained["solves"] == "yes (too few seeds: 3)"
 
 
+def test_a_task_given_its_own_seed_count_is_judged_at_it(suite, tmp_path):
+    # the default asks 5 seeds a side; KeyCorridorS3R3 is given 3, as a task whose
+    # budget makes 5 unaffordable is
+    out = tmp_path / "out"
+    argv = [*map(str, suite["dirs"]), "--out", str(out)]
+    assert main([*argv, "--task-min-seeds", "KeyCorridorS3R3=3"]) == 0
+    targets = _targets(out)
+    trained = targets.loc[("KeyCorridorS3R3", "best trained VAE")]
+    assert trained["solves"] == "yes"
+    assert trained["vs_e3b_verdict"] == "better"
+    assert trained["vs_untrained_verdict"] == "better"
+    # the other task keeps the default
+    d16 = targets.loc[("DoorKey-16x16", "best trained VAE")]
+    assert d16["solves"] == "no (too few seeds: 1)"
+    # the same through the function, the same table as --min-seeds 3 gives here
+    write_suite(suite["dirs"], tmp_path / "api", task_min_seeds={"KeyCorridorS3R3": 3})
+    assert (tmp_path / "api" / "targets.csv").read_text() == (
+        out / "targets.csv"
+    ).read_text()
+    s3r3 = _targets(suite["out"]).loc["KeyCorridorS3R3"]
+    pd.testing.assert_frame_equal(targets.loc["KeyCorridorS3R3"], s3r3)
+
+
+@pytest.mark.parametrize(
+    "item, expected",
+    [
+        ("KeyCoridorS3R3=3", "which no experiment holds; expected one of"),
+        ("KeyCorridorS3R3", "expects TASK=N with N at least 1"),
+        ("KeyCorridorS3R3=0", "expects TASK=N with N at least 1"),
+    ],
+)
+def test_a_wrong_task_seed_count_is_refused_with_what_was_expected(
+    suite, tmp_path, capsys, item, expected
+):
+    argv = [*map(str, suite["dirs"]), "--out", str(tmp_path / "out")]
+    with pytest.raises(SystemExit) as raised:
+        main([*argv, "--task-min-seeds", item])
+    assert raised.value.code == 2
+    assert expected in capsys.readouterr().err
+    assert not (tmp_path / "out" / "targets.csv").exists()
+
+
 def test_level_and_worse_verdicts_follow_the_interval(suite, tmp_path):
     # the best trained setting (vae_a) against e3b, with the CI moved by hand
     directory = tmp_path / "s3r3"
@@ -326,7 +376,12 @@ def test_the_committed_suite_table_is_what_make_figures_writes(tmp_path):
         if not path.parent.name.endswith(("_16x128", "_64x32"))
     )
     assert dirs, "no committed suite experiment"
-    write_suite(dirs, tmp_path, root / "suite_published.csv")
+    # the tasks given their own seed count there (a 3-seed full pass)
+    makefile = (root.parents[1] / "Makefile").read_text()
+    counts = re.findall(r"--task-min-seeds (\S+)=(\d+)", makefile)
+    assert counts, "the Makefile's figures target gives no task its own seed count"
+    task_min_seeds = {task: int(seeds) for task, seeds in counts}
+    write_suite(dirs, tmp_path, root / "suite_published.csv", MIN_SEEDS, task_min_seeds)
     for name in ("table.csv", "wide.csv", "frames_to_solve.csv", "targets.csv"):
         assert (tmp_path / name).read_text() == (root / "suite" / name).read_text(), (
             f"docs/results/suite/{name} is stale: run `make figures`"

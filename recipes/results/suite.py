@@ -39,7 +39,9 @@ moving return first reached 0.9 of the oracle's.
   the task; and against E3B and NovelD the probability that it is better (from
   the task's ``probability_of_improvement.csv``) with a verdict: ``better`` (the
   CI above 0.5), ``worse`` (below), ``level`` (the CI holds 0.5) or ``too few
-  seeds`` (either side under ``--min-seeds``, default :data:`MIN_SEEDS`);
+  seeds`` (either side under ``--min-seeds``, default :data:`MIN_SEEDS`, or
+  under the task's own count given by ``--task-min-seeds TASK=N``: a task whose
+  budget makes the full pass unaffordable runs fewer seeds, and says so);
   then the same against the candidate's untrained control (the setting named
   ``<candidate>_untrained``: the same bonus on a VAE that never trains), which
   says whether the VAE's training earns its cost on the task.
@@ -68,7 +70,7 @@ __all__ = [
 import argparse
 import shutil
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from functools import partial
 from pathlib import Path
 
@@ -416,24 +418,48 @@ def _candidates(scored: pd.DataFrame, min_seeds: int) -> dict[str, str]:
     return {label: best(group) for (label, _), group in zip(CANDIDATES, (vae, trained))}
 
 
+def _check_task_min_seeds(
+    table: pd.DataFrame, task_min_seeds: Mapping[str, int]
+) -> None:
+    tasks = sorted(table["task"].unique())
+    for task, seeds in task_min_seeds.items():
+        if task not in tasks:
+            raise SuiteInputError(
+                f"a seed count is given for task {task!r}, which no experiment "
+                f"holds; expected one of {tasks}"
+            )
+        if isinstance(seeds, bool) or not isinstance(seeds, int) or seeds < 1:
+            raise SuiteInputError(
+                f"the seed count of task {task!r} must be an integer of at least "
+                f"1, got {seeds!r}"
+            )
+
+
 def targets(
-    table: pd.DataFrame, probabilities: pd.DataFrame, min_seeds: int = MIN_SEEDS
+    table: pd.DataFrame,
+    probabilities: pd.DataFrame,
+    min_seeds: int = MIN_SEEDS,
+    task_min_seeds: Mapping[str, int] | None = None,
 ) -> pd.DataFrame:
     """Per task and candidate (:data:`CANDIDATES`): its setting and score, whether
     it solves the task, the plain learner's score, and how the candidate compares
     with each peer (see the module's description).
 
-    A verdict needs ``min_seeds`` finished seeds on both sides, and an oracle:
-    the probabilities of improvement compare returns, which are the score only
-    where they are normalised by the oracle's.
+    A verdict needs ``min_seeds`` finished seeds on both sides (the task's own
+    count where ``task_min_seeds`` names it, by its short name as in
+    :func:`short_task`), and an oracle: the probabilities of improvement compare
+    returns, which are the score only where they are normalised by the oracle's.
     """
+    task_min_seeds = dict(task_min_seeds or {})
+    _check_task_min_seeds(table, task_min_seeds)
     poi = probabilities.assign(task=probabilities["task"].map(short_task))
     rows = []
     for task, rows_of_task in table.groupby("task", sort=False):
+        needed = task_min_seeds.get(task, min_seeds)
         ran = rows_of_task.set_index("setting")
         scored = ran.dropna(subset=["iqm"])
         normalized = bool((rows_of_task["metric"] == "return / oracle").all())
-        for label, best in _candidates(scored, min_seeds).items():
+        for label, best in _candidates(scored, needed).items():
             out = {"task": task, "candidate": label, "setting": best}
             out["score"] = _score(ran, best) if best else ""
             if not best:
@@ -441,11 +467,11 @@ def targets(
             else:
                 seeds = int(scored.loc[best, "seeds"])
                 out["solves"] = "yes" if scored.loc[best, "solved"] else "no"
-                if seeds < min_seeds:
+                if seeds < needed:
                     out["solves"] += f" (too few seeds: {seeds})"
             out["plain"] = _score(ran, PLAIN)
             compare = partial(
-                _compare, ran, scored, poi, task, best, min_seeds, normalized
+                _compare, ran, scored, poi, task, best, needed, normalized
             )
             for peer in PEERS:
                 out[peer] = _score(ran, peer)
@@ -504,8 +530,10 @@ def write_suite(
     out: str | Path,
     published: str | Path | None = None,
     min_seeds: int = MIN_SEEDS,
+    task_min_seeds: Mapping[str, int] | None = None,
 ) -> dict[str, Path]:
-    """Writes the suite's tables (see the module's description) into ``out``."""
+    """Writes the suite's tables (see the module's description) into ``out``;
+    ``min_seeds`` and ``task_min_seeds`` as in :func:`targets`."""
     summary, probabilities = read_experiments(dirs)
     table = suite_table(summary)
     published_table = read_published(published) if published else None
@@ -522,7 +550,7 @@ def write_suite(
         "table.csv": table,
         "wide.csv": scores,
         "frames_to_solve.csv": frames,
-        "targets.csv": targets(table, probabilities, min_seeds),
+        "targets.csv": targets(table, probabilities, min_seeds, task_min_seeds),
     }
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -558,11 +586,34 @@ def main(argv: Sequence[str] | None = None) -> int:
         default=MIN_SEEDS,
         help="finished seeds each side needs for a verdict in targets.csv",
     )
+    parser.add_argument(
+        "--task-min-seeds",
+        action="append",
+        default=[],
+        metavar="TASK=N",
+        help="a task's own --min-seeds (TASK as in wide.csv: KeyCorridorS6R3=3); "
+        "repeat for each such task",
+    )
     args = parser.parse_args(argv)
     if args.min_seeds < 1:
         parser.error(f"--min-seeds must be at least 1, got {args.min_seeds}")
+    task_min_seeds = {}
+    for item in args.task_min_seeds:
+        task, _, seeds = item.partition("=")
+        if not task or not seeds.isdigit() or int(seeds) < 1:
+            parser.error(
+                f"--task-min-seeds expects TASK=N with N at least 1 "
+                f"(KeyCorridorS6R3=3), got {item!r}"
+            )
+        task_min_seeds[task] = int(seeds)
     try:
-        paths = write_suite(args.experiments, args.out, args.published, args.min_seeds)
+        paths = write_suite(
+            args.experiments,
+            args.out,
+            args.published,
+            args.min_seeds,
+            task_min_seeds,
+        )
     except SuiteInputError as error:
         parser.error(str(error))
     print("\n".join(f"wrote {path}" for path in paths.values()))
