@@ -241,9 +241,14 @@ def test_a_task_given_its_own_seed_count_is_judged_at_it(suite, tmp_path):
     assert trained["solves"] == "yes"
     assert trained["vs_e3b_verdict"] == "better"
     assert trained["vs_untrained_verdict"] == "better"
-    # the other task keeps the default
-    d16 = targets.loc[("DoorKey-16x16", "best trained VAE")]
-    assert d16["solves"] == "no (too few seeds: 1)"
+    # the task's count replaces the default either way: asking 4 of it where the
+    # default is 3 makes its 3 seeds too few again
+    raised = tmp_path / "raised"
+    argv_raised = [*map(str, suite["dirs"]), "--out", str(raised), "--min-seeds", "3"]
+    assert main([*argv_raised, "--task-min-seeds", "KeyCorridorS3R3=4"]) == 0
+    trained_4 = _targets(raised).loc[("KeyCorridorS3R3", "best trained VAE")]
+    assert trained_4["solves"] == "yes (too few seeds: 3)"
+    assert trained_4["vs_e3b_verdict"] == "too few seeds (3 vs 3)"
     # the same through the function, the same table as --min-seeds 3 gives here
     write_suite(suite["dirs"], tmp_path / "api", task_min_seeds={"KeyCorridorS3R3": 3})
     assert (tmp_path / "api" / "targets.csv").read_text() == (
@@ -259,6 +264,7 @@ def test_a_task_given_its_own_seed_count_is_judged_at_it(suite, tmp_path):
         ("KeyCoridorS3R3=3", "which no experiment holds; expected one of"),
         ("KeyCorridorS3R3", "expects TASK=N with N at least 1"),
         ("KeyCorridorS3R3=0", "expects TASK=N with N at least 1"),
+        ("KeyCorridorS3R3=\u00b3", "expects TASK=N with N at least 1"),
     ],
 )
 def test_a_wrong_task_seed_count_is_refused_with_what_was_expected(
@@ -376,10 +382,12 @@ def test_the_committed_suite_table_is_what_make_figures_writes(tmp_path):
         if not path.parent.name.endswith(("_16x128", "_64x32"))
     )
     assert dirs, "no committed suite experiment"
-    # the tasks given their own seed count there (a 3-seed full pass)
+    # the tasks its figures target gives their own seed count (a 3-seed full pass)
     makefile = (root.parents[1] / "Makefile").read_text()
-    counts = re.findall(r"--task-min-seeds (\S+)=(\d+)", makefile)
-    assert counts, "the Makefile's figures target gives no task its own seed count"
+    figures = re.search(r"^figures:.*?(?=^\S)", makefile, re.M | re.S)
+    assert figures and "suite.py" in figures.group(), "no suite.py in make figures"
+    assert "--min-seeds" not in figures.group(), "make figures sets --min-seeds"
+    counts = re.findall(r"--task-min-seeds[ =](\S+)=(\d+)", figures.group())
     task_min_seeds = {task: int(seeds) for task, seeds in counts}
     write_suite(dirs, tmp_path, root / "suite_published.csv", MIN_SEEDS, task_min_seeds)
     for name in ("table.csv", "wide.csv", "frames_to_solve.csv", "targets.csv"):

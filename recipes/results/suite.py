@@ -39,9 +39,10 @@ moving return first reached 0.9 of the oracle's.
   the task; and against E3B and NovelD the probability that it is better (from
   the task's ``probability_of_improvement.csv``) with a verdict: ``better`` (the
   CI above 0.5), ``worse`` (below), ``level`` (the CI holds 0.5) or ``too few
-  seeds`` (either side under ``--min-seeds``, default :data:`MIN_SEEDS`, or
-  under the task's own count given by ``--task-min-seeds TASK=N``: a task whose
-  budget makes the full pass unaffordable runs fewer seeds, and says so);
+  seeds`` (either side under ``--min-seeds``, default :data:`MIN_SEEDS`, or in
+  its place the task's own count where ``--task-min-seeds TASK=N`` names it: a
+  task whose budget makes the full pass unaffordable runs fewer seeds, and says
+  so; the same count decides which settings compete as candidates);
   then the same against the candidate's untrained control (the setting named
   ``<candidate>_untrained``: the same bonus on a VAE that never trains), which
   says whether the VAE's training earns its cost on the task.
@@ -600,11 +601,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     task_min_seeds = {}
     for item in args.task_min_seeds:
         task, _, seeds = item.partition("=")
-        if not task or not seeds.isdigit() or int(seeds) < 1:
+        if not task or not seeds.isdecimal() or int(seeds) < 1:
             parser.error(
                 f"--task-min-seeds expects TASK=N with N at least 1 "
                 f"(KeyCorridorS6R3=3), got {item!r}"
             )
+        if task in task_min_seeds:
+            parser.error(f"--task-min-seeds gives {task!r} twice")
         task_min_seeds[task] = int(seeds)
     try:
         paths = write_suite(
