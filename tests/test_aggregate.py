@@ -314,14 +314,41 @@ def test_earlier_data_without_its_runs_meta_merges_and_reads_as_finished(
     assert (out / "runs.csv").read_bytes() == (sweep["out"] / "runs.csv").read_bytes()
     status = (out / "status.rst").read_text()
     assert status == (sweep["out"] / "status.rst").read_text()
-    # the sweep covers two tasks, so each setting is named with its task
+    # the sweep covers two tasks, so each setting is named with its task; the
+    # budget (none given: the frames every run of the task reached) is 6k, so the
+    # run is unfinished and in the scores
     assert (
-        f"Unfinished when aggregated: {CHEETAH} cheetah_vae seed 1 (6k of 10k" in status
+        "Past the budget, not yet at their own total_frames (in the final scores, "
+        f"read at the budget): {CHEETAH} cheetah_vae seed 1 (6k of 10k" in status
     )
     assert f"{CHEETAH} cheetah_vae 2, {CHEETAH} none 2, {MINIGRID} " in status
-    assert "bonus=" not in status.split("Unfinished")[1]
+    assert "bonus=" not in status.split("Past the budget")[1]
     meta = read(out, "runs_meta.csv")
     assert meta[meta["task"] == MINIGRID]["total_frames"].isna().all()
+
+
+def test_a_run_unfinished_but_past_the_budget_is_scored_and_said_so(sweep, tmp_path):
+    # cheetah_vae seed 1 stopped at 6k of its 10k frames: at a budget of 5k it is
+    # past the budget (a study aggregated at a budget below its runs' own, or runs
+    # extended beyond it), so its score counts and the status does not say it is
+    # left out
+    runs = sweep["root"] / "runs" / "cheetah"
+    out = tmp_path / "out"
+    argv = [str(runs), "--out", str(out), "--budget", "5000", "--reps", str(REPS)]
+    assert main(argv) == 0
+    status = (out / "status.rst").read_text()
+    assert "leave them out" not in status
+    assert (
+        "Past the budget, not yet at their own total_frames (in the final scores, "
+        "read at the budget): cheetah_vae seed 1 (6k of 10k frames)." in status
+    )
+    scores = read(out, "final_scores.csv")
+    returns = scores[scores["metric"] == "train/episode_return"]
+    vae = returns[returns["setting"] == "cheetah_vae"]
+    assert sorted(vae["seed"]) == [0, 1]
+    assert (vae["frames"] <= 5000).all()
+    assert status.startswith("Seeds that reached the budget, per setting: ")
+    assert "cheetah_vae 2, none 2." in status
 
 
 def test_settings_keeps_only_the_runs_of_those_settings(sweep, tmp_path):

@@ -1366,21 +1366,48 @@ def unfinished_runs(meta: pd.DataFrame) -> pd.DataFrame:
     return meta[meta["finished"].astype(str) == "False"]
 
 
-def status_text(summary: pd.DataFrame, meta: pd.DataFrame | None) -> str:
+def status_text(
+    summary: pd.DataFrame,
+    meta: pd.DataFrame | None,
+    scores: pd.DataFrame | None = None,
+) -> str:
     """One paragraph (reStructuredText) on what the tables cover: seeds per
-    setting and the runs that had not reached their budget when aggregated.
+    setting and the runs that had not reached their own ``total_frames`` when
+    aggregated.
 
-    Where the summary covers several tasks, each setting is named with its task.
+    Such a run is either short of the aggregation's budget, and left out of the
+    final scores, or past it (a budget below the runs' own, or a run extended
+    beyond it), and in them, read at the budget. ``scores`` (the table of
+    :func:`final_scores`) says which; without it a run is past the budget when
+    its last logged frame is at least the budget. Where the summary covers
+    several tasks, each setting is named with its task.
 
     Examples:
         >>> summary = pd.DataFrame({"task": ["A", "B"], "setting": "s", "seeds": [3, 1]})
         >>> print(status_text(summary, None), end="")
         Seeds that reached the budget, per setting: A s 3, B s 1.
+        >>> summary = pd.DataFrame(
+        ...     {"task": "A", "setting": ["s", "t"], "seeds": [1, 1], "budget": 5000})
+        >>> meta = pd.DataFrame({"task": "A", "setting": ["s", "t"], "seed": 0,
+        ...     "total_frames": 10000, "last_frame": [4000, 6000], "finished": False})
+        >>> print(status_text(summary, meta), end="")  # doctest: +NORMALIZE_WHITESPACE
+        Seeds that reached the budget, per setting: s 1, t 1. Unfinished when
+        aggregated: s seed 0 (4k of 10k frames); final scores leave them out
+        (curves show them up to where they got), and rerunning the sweep command
+        completes them. Past the budget, not yet at their own total_frames (in the
+        final scores, read at the budget): t seed 0 (6k of 10k frames).
     """
     several = summary["task"].nunique() > 1
 
     def name(row) -> str:
         return f"{row['task']} {row['setting']}" if several else str(row["setting"])
+
+    def listed(runs: pd.DataFrame) -> str:
+        return ", ".join(
+            f"{name(r._asdict())} seed {r.seed} ({int(r.last_frame) // 1000}k of "
+            f"{int(r.total_frames) // 1000}k frames)"
+            for r in runs.itertuples()
+        )
 
     counts = ", ".join(
         f"{name(row)} {int(row.get('train_return_seeds', row['seeds']))}"
@@ -1388,16 +1415,25 @@ def status_text(summary: pd.DataFrame, meta: pd.DataFrame | None) -> str:
     )
     text = f"Seeds that reached the budget, per setting: {counts}."
     late = None if meta is None else unfinished_runs(meta)
-    if late is not None and len(late):
-        runs = ", ".join(
-            f"{name(r._asdict())} seed {r.seed} ({int(r.last_frame) // 1000}k of "
-            f"{int(r.total_frames) // 1000}k frames)"
-            for r in late.itertuples()
-        )
+    if late is None or not len(late):
+        return text + "\n"
+    if scores is not None:
+        scored = pd.MultiIndex.from_frame(scores[_RUN_KEYS].drop_duplicates())
+        past = pd.MultiIndex.from_frame(late[_RUN_KEYS]).isin(scored)
+    else:
+        budgets = summary.drop_duplicates("task").set_index("task")["budget"]
+        past = (late["last_frame"] >= late["task"].map(budgets)).to_numpy()
+    short, beyond = late[~past], late[past]
+    if len(short):
         text += (
-            f" Unfinished when aggregated: {runs}; final scores leave them out "
-            "(curves show them up to where they got), and rerunning the sweep "
+            f" Unfinished when aggregated: {listed(short)}; final scores leave them "
+            "out (curves show them up to where they got), and rerunning the sweep "
             "command completes them."
+        )
+    if len(beyond):
+        text += (
+            " Past the budget, not yet at their own total_frames (in the final "
+            f"scores, read at the budget): {listed(beyond)}."
         )
     return text + "\n"
 
@@ -1466,7 +1502,8 @@ def aggregate(
         ),
     }
     tables["report.csv"] = report_table(tables["summary.csv"])
-    (out / "status.rst").write_text(status_text(tables["summary.csv"], meta))
+    status = status_text(tables["summary.csv"], meta, tables["final_scores.csv"])
+    (out / "status.rst").write_text(status)
     paths = {}
     for name, table in tables.items():
         paths[name] = out / name
