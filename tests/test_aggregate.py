@@ -30,6 +30,7 @@ from results.aggregate import (
     read_oracle,
     runs_metadata,
     setting_label,
+    status_text,
 )
 
 MINIGRID, CHEETAH = "MiniGrid-Fake-v0", "HalfCheetah-v5"
@@ -349,6 +350,21 @@ def test_a_run_unfinished_but_past_the_budget_is_scored_and_said_so(sweep, tmp_p
     assert (vae["frames"] <= 5000).all()
     assert status.startswith("Seeds that reached the budget, per setting: ")
     assert "cheetah_vae 2, none 2." in status
+
+
+def test_the_status_of_unfinished_runs_needs_the_scores_that_hold_them(sweep):
+    # which unfinished runs are in the scores is final_scores' rule, not a second
+    # one: without its table the status refuses to guess
+    summary, meta = (
+        read(sweep["out"], "summary.csv"),
+        read(sweep["out"], "runs_meta.csv"),
+    )
+    with pytest.raises(ValueError, match="needs the final scores"):
+        status_text(summary, meta)
+    scores = read(sweep["out"], "final_scores.csv")
+    assert (
+        status_text(summary, meta, scores) == (sweep["out"] / "status.rst").read_text()
+    )
 
 
 def test_settings_keeps_only_the_runs_of_those_settings(sweep, tmp_path):

@@ -1378,20 +1378,22 @@ def status_text(
     Such a run is either short of the aggregation's budget, and left out of the
     final scores, or past it (a budget below the runs' own, or a run extended
     beyond it), and in them, read at the budget. ``scores`` (the table of
-    :func:`final_scores`) says which; without it a run is past the budget when
-    its last logged frame is at least the budget. Where the summary covers
-    several tasks, each setting is named with its task.
+    :func:`final_scores`, required when ``meta`` holds such runs) says which, so
+    the text follows the scores' own rule. Where the summary covers several
+    tasks, each setting is named with its task.
 
     Examples:
         >>> summary = pd.DataFrame({"task": ["A", "B"], "setting": "s", "seeds": [3, 1]})
         >>> print(status_text(summary, None), end="")
         Seeds that reached the budget, per setting: A s 3, B s 1.
-        >>> summary = pd.DataFrame(
-        ...     {"task": "A", "setting": ["s", "t"], "seeds": [1, 1], "budget": 5000})
+        >>> summary = pd.DataFrame({"task": "A", "setting": ["s", "t"], "seeds": 1,
+        ...     "train_return_seeds": [0, 1]})
         >>> meta = pd.DataFrame({"task": "A", "setting": ["s", "t"], "seed": 0,
         ...     "total_frames": 10000, "last_frame": [4000, 6000], "finished": False})
-        >>> print(status_text(summary, meta), end="")  # doctest: +NORMALIZE_WHITESPACE
-        Seeds that reached the budget, per setting: s 1, t 1. Unfinished when
+        >>> scores = pd.DataFrame({"task": ["A"], "setting": ["t"], "seed": [0]})
+        >>> print(status_text(summary, meta, scores), end="")
+        ... # doctest: +NORMALIZE_WHITESPACE
+        Seeds that reached the budget, per setting: s 0, t 1. Unfinished when
         aggregated: s seed 0 (4k of 10k frames); final scores leave them out
         (curves show them up to where they got), and rerunning the sweep command
         completes them. Past the budget, not yet at their own total_frames (in the
@@ -1417,12 +1419,13 @@ def status_text(
     late = None if meta is None else unfinished_runs(meta)
     if late is None or not len(late):
         return text + "\n"
-    if scores is not None:
-        scored = pd.MultiIndex.from_frame(scores[_RUN_KEYS].drop_duplicates())
-        past = pd.MultiIndex.from_frame(late[_RUN_KEYS]).isin(scored)
-    else:
-        budgets = summary.drop_duplicates("task").set_index("task")["budget"]
-        past = (late["last_frame"] >= late["task"].map(budgets)).to_numpy()
+    if scores is None:
+        raise ValueError(
+            "status_text needs the final scores (final_scores' table) to say which "
+            "unfinished runs they hold"
+        )
+    scored = pd.MultiIndex.from_frame(scores[_RUN_KEYS].drop_duplicates())
+    past = pd.MultiIndex.from_frame(late[_RUN_KEYS]).isin(scored)
     short, beyond = late[~past], late[past]
     if len(short):
         text += (
