@@ -22,6 +22,7 @@ from common.run import (
     LOCK_NAME,
     RunCheckpoint,
     RunCounters,
+    RunMLFlowLogger,
     StopSignal,
     TrainingRun,
     _submitit_requeue,
@@ -301,3 +302,53 @@ def test_a_resumed_wandb_run_continues_the_same_run(tmp_path):
     assert len(runs) == 2 and len(ids) == 1, [p.name for p in runs]
     saved = load_checkpoint(run_dir / CHECKPOINT_NAME)["logger"]["state"]
     assert ids == {saved["local"]["id"]}
+
+
+def test_a_resumed_mlflow_run_continues_the_same_run(tmp_path):
+    mlflow = pytest.importorskip("mlflow")
+    run_dir = tmp_path / "run"
+    cmd = [sys.executable, str(MAIN), f"hydra.run.dir={run_dir}", *TINY]
+    env = {k: v for k, v in os.environ.items() if k != "MLFLOW_TRACKING_URI"}
+    proc = subprocess.Popen(
+        [*cmd, "logger.backend=mlflow", "collector.total_frames=1000000"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    try:
+        wait_for_checkpoint(run_dir / CHECKPOINT_NAME, min_frames=128)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 128 + signal.SIGTERM, err[-3000:]
+    frames = checkpoint_info(run_dir / CHECKPOINT_NAME)["frames"]
+    resumed = subprocess.run(
+        [*cmd, "logger.backend=mlflow", f"collector.total_frames={frames + 64}"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=env,
+    )
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    # one run in the run's own SQLite store, holding both parts' steps
+    client = mlflow.MlflowClient(f"sqlite:///{run_dir / 'logs' / 'mlflow.db'}")
+    runs = [
+        r
+        for e in client.search_experiments()
+        for r in client.search_runs([e.experiment_id])
+    ]
+    saved = load_checkpoint(run_dir / CHECKPOINT_NAME)["logger"]["state"]
+    assert [r.info.run_id for r in runs] == [saved["local"]["run_id"]]
+    steps = [
+        m.step for m in client.get_metric_history(runs[0].info.run_id, "train/episodes")
+    ]
+    assert steps[0] <= 64 and steps[-1] == frames + 64, steps
+
+
+def test_an_mlflow_run_missing_from_the_store_is_refused_naming_it(tmp_path):
+    pytest.importorskip("mlflow")
+    uri = f"sqlite:///{tmp_path / 'other.db'}"
+    with pytest.raises(ValueError, match="Cannot resume MLflow run 'a1b2c3'.*other.db"):
+        RunMLFlowLogger("demo", uri, run_id="a1b2c3")

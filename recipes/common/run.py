@@ -55,6 +55,7 @@ from torchrl.checkpoint import (
     GlobalRNGState,
     StateDictCheckpointAdapter,
 )
+from torchrl.record.loggers.mlflow import MLFlowLogger
 
 from torchrl_surprise import collectors as _collectors
 
@@ -91,6 +92,7 @@ __all__ = [
     "evaluate",
     "get_run_logger",
     "RESUMED_LOGGERS",
+    "RunMLFlowLogger",
     "checkpoint_info",
     "find_checkpoint",
     "load_checkpoint",
@@ -1725,12 +1727,63 @@ class _LoggerState:
         return None if state is None else _without_csv_history(backend, state)
 
 
-RESUMED_LOGGERS: tuple[str, ...] = ("csv", "tensorboard", "wandb")
+RESUMED_LOGGERS: tuple[str, ...] = ("csv", "tensorboard", "wandb", "mlflow")
 """The backends whose run a resumed run continues from the logger state in its
-checkpoint (TorchRL's ``get_logger(..., state_dict=)``): the same W&B run (its id,
-``resume="must"``), the same TensorBoard and CSV directories with their counters.
-MLflow is not among them: a resumed run logs a new MLflow run of the same
-experiment."""
+checkpoint: the same W&B run (its id, ``resume="must"``), the same TensorBoard and
+CSV directories with their counters (TorchRL's ``get_logger(..., state_dict=)``),
+the same MLflow run (its run id, :class:`RunMLFlowLogger`)."""
+
+MLFLOW_DB = "mlflow.db"
+"""The SQLite store an MLflow run writes under ``<run_dir>/logs`` when the
+``MLFLOW_TRACKING_URI`` environment variable does not name another store."""
+
+
+class RunMLFlowLogger(MLFlowLogger):
+    """TorchRL's ``MLFlowLogger``, whose run a resumed run continues.
+
+    TorchRL's logger starts a new MLflow run each time it is built; this one, given
+    the ``run_id`` saved in the checkpoint (its ``state_dict()["local"]["run_id"]``),
+    reopens that run (``mlflow.start_run(run_id=...)``), so a run killed and
+    resumed is one MLflow run. :func:`get_run_logger` builds it for
+    ``logger.backend=mlflow``.
+
+    Args:
+        exp_name (str): the MLflow experiment.
+        tracking_uri (str): the MLflow store (a database or server URI).
+
+    Keyword Args:
+        run_id (str, optional): the run to continue; a new run when ``None``.
+        **kwargs: see TorchRL's ``MLFlowLogger``.
+    """
+
+    def __init__(self, exp_name, tracking_uri, *, run_id=None, **kwargs):
+        self._resume_run_id = run_id
+        super().__init__(exp_name, tracking_uri, **kwargs)
+
+    def _create_experiment(self):
+        import mlflow
+
+        if self._resume_run_id is None:
+            return super()._create_experiment()
+        try:
+            run = mlflow.get_run(self._resume_run_id)
+        except mlflow.exceptions.MlflowException as err:
+            raise ValueError(
+                f"Cannot resume MLflow run {self._resume_run_id!r} (saved in the "
+                f"checkpoint) from the store {mlflow.get_tracking_uri()!r}: {err}. "
+                "A run resumes in the store it started in: set MLFLOW_TRACKING_URI "
+                f"to it, or unset it for the run's logs/{MLFLOW_DB}."
+            ) from None
+        self.id = run.info.experiment_id
+        return mlflow.start_run(run_id=self._resume_run_id)
+
+    @property
+    def run_id(self) -> str:
+        """The MLflow run's id."""
+        return self.experiment.info.run_id
+
+    def _checkpoint_state(self) -> dict[str, Any]:
+        return {**super()._checkpoint_state(), "run_id": self.run_id}
 
 
 def get_run_logger(
@@ -1772,6 +1825,8 @@ def get_run_logger(
     from torchrl.record.loggers import get_logger
 
     logs = str(Path(run_dir) / "logs")
+    if backend == "mlflow":
+        return _mlflow_run_logger(Path(logs), experiment_name, state_dict)
     kwargs: dict[str, Any] = {}
     if backend == "wandb":
         kwargs["wandb_kwargs"] = {"project": project}
@@ -1791,6 +1846,24 @@ def get_run_logger(
         start = SessionLog(status=SessionLog.START)
         writer.add_event(Event(step=purge_after + 1, session_log=start))
         writer.flush()
+    return logger
+
+
+def _mlflow_run_logger(logs: Path, experiment_name: str, state_dict):
+    """The MLflow logger of :func:`get_run_logger`: a new run, or the saved one."""
+    logs.mkdir(parents=True, exist_ok=True)
+    local = (state_dict or {}).get("local") or {}
+    uri = os.environ.get("MLFLOW_TRACKING_URI")
+    # the run's own store keeps its artifacts beside it; a named store, its own
+    artifacts = None if uri else (logs / "mlflow-artifacts").resolve().as_uri()
+    logger = RunMLFlowLogger(
+        experiment_name,
+        uri or f"sqlite:///{(logs / MLFLOW_DB).resolve()}",
+        run_id=local.get("run_id"),
+        artifact_location=artifacts,
+    )
+    if state_dict is not None:
+        logger.load_state_dict(state_dict)
     return logger
 
 
