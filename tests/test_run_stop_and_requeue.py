@@ -27,6 +27,7 @@ from common.run import (
     TrainingRun,
     _submitit_requeue,
     checkpoint_info,
+    get_run_logger,
     load_checkpoint,
     read_scalar_csv,
 )
@@ -347,8 +348,81 @@ def test_a_resumed_mlflow_run_continues_the_same_run(tmp_path):
     assert steps[0] <= 64 and steps[-1] == frames + 64, steps
 
 
-def test_an_mlflow_run_missing_from_the_store_is_refused_naming_it(tmp_path):
-    pytest.importorskip("mlflow")
+@pytest.fixture
+def mlflow_here(monkeypatch):
+    """mlflow, with its process-wide tracking URI and active run put back after."""
+    mlflow = pytest.importorskip("mlflow")
+    from mlflow.tracking._tracking_service import utils as tracking_utils
+
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    monkeypatch.setattr(tracking_utils, "_tracking_uri", tracking_utils._tracking_uri)
+    yield mlflow
+    while mlflow.active_run() is not None:
+        mlflow.end_run()
+
+
+def _mlflow_runs(mlflow, store):
+    client = mlflow.MlflowClient(store)
+    return client, {
+        r.info.run_id: r
+        for e in client.search_experiments()
+        for r in client.search_runs([e.experiment_id])
+    }
+
+
+def test_an_mlflow_run_missing_from_the_store_is_refused_naming_it(
+    tmp_path, mlflow_here
+):
     uri = f"sqlite:///{tmp_path / 'other.db'}"
     with pytest.raises(ValueError, match="Cannot resume MLflow run 'a1b2c3'.*other.db"):
         RunMLFlowLogger("demo", uri, run_id="a1b2c3")
+
+
+def test_mlflow_runs_one_after_another_in_a_process_each_log_to_their_own(
+    tmp_path, mlflow_here, monkeypatch
+):
+    # a sweep's worker runs job after job in one process; with a shared store
+    # (MLFLOW_TRACKING_URI) a resumed run sits in another experiment than the
+    # last one logged to
+    store = f"sqlite:///{tmp_path / 'shared.db'}"
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", store)
+    first = get_run_logger("mlflow", tmp_path / "a", "exp_a", "p")
+    first.log_scalar("train/x", 1.0, step=64)
+    state = first.state_dict()
+    first.end("KILLED")
+    second = get_run_logger("mlflow", tmp_path / "b", "exp_b", "p")
+    second.log_scalar("train/x", 2.0, step=64)  # never ended: a crashed job
+    resumed = get_run_logger("mlflow", tmp_path / "a", "exp_a", "p", state_dict=state)
+    resumed.log_scalar("train/x", 3.0, step=128)
+    resumed.end()
+    client, runs = _mlflow_runs(mlflow_here, store)
+    assert resumed.run_id == first.run_id and len(runs) == 2
+    history = client.get_metric_history(first.run_id, "train/x")
+    assert [(m.step, m.value) for m in history] == [(64, 1.0), (128, 3.0)]
+    assert [m.value for m in client.get_metric_history(second.run_id, "train/x")] == [
+        2.0
+    ]
+    assert runs[first.run_id].info.status == "FINISHED"
+    assert runs[second.run_id].info.status == "FAILED"
+
+
+def test_an_mlflow_checkpoint_without_a_run_id_resumes_with_a_new_run(
+    tmp_path, mlflow_here
+):
+    # the logger state of a checkpoint written before the run id was saved: the
+    # experiment id of another store, the video counter
+    old = {
+        "exp_name": "demo",
+        "log_dir": "x",
+        "local": {"id": "7", "video_log_counter": 3},
+    }
+    logger = get_run_logger("mlflow", tmp_path, "demo", "p", state_dict=old)
+    logger.log_scalar("train/x", 1.0, step=64)
+    logger.end()
+    client, runs = _mlflow_runs(
+        mlflow_here, f"sqlite:///{tmp_path / 'logs' / 'mlflow.db'}"
+    )
+    assert list(runs) == [logger.run_id] and logger.video_log_counter == 3
+    assert [m.value for m in client.get_metric_history(logger.run_id, "train/x")] == [
+        1.0
+    ]

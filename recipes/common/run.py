@@ -1481,6 +1481,7 @@ class TrainingRun:
         if not self._stop:
             return
         self._checkpoint.save()
+        _end_logger_run(self.logger, "KILLED")
         self.progress_bar.close()
         for close in self._on_exit:
             close()
@@ -1524,6 +1525,7 @@ class TrainingRun:
         self._stop.restore()
         self.progress_bar.close()
         self._checkpoint.save()
+        _end_logger_run(self.logger, "FINISHED")
         for close in self._on_exit:
             close()
         curve = plot_run_curves(
@@ -1763,11 +1765,17 @@ class RunMLFlowLogger(MLFlowLogger):
     def _create_experiment(self):
         import mlflow
 
+        if mlflow.active_run() is not None:
+            # an earlier run of this process (a sweep's worker runs job after job)
+            # that neither finished nor stopped (TrainingRun ends those): it failed
+            mlflow.end_run("FAILED")
         if self._resume_run_id is None:
             return super()._create_experiment()
         try:
             run = mlflow.get_run(self._resume_run_id)
         except mlflow.exceptions.MlflowException as err:
+            if err.error_code != "RESOURCE_DOES_NOT_EXIST":
+                raise
             raise ValueError(
                 f"Cannot resume MLflow run {self._resume_run_id!r} (saved in the "
                 f"checkpoint) from the store {mlflow.get_tracking_uri()!r}: {err}. "
@@ -1775,6 +1783,8 @@ class RunMLFlowLogger(MLFlowLogger):
                 f"to it, or unset it for the run's logs/{MLFLOW_DB}."
             ) from None
         self.id = run.info.experiment_id
+        # start_run(run_id=) refuses a run outside the active experiment
+        mlflow.set_experiment(experiment_id=self.id)
         return mlflow.start_run(run_id=self._resume_run_id)
 
     @property
@@ -1782,8 +1792,41 @@ class RunMLFlowLogger(MLFlowLogger):
         """The MLflow run's id."""
         return self.experiment.info.run_id
 
+    def end(self, status: str = "FINISHED") -> None:
+        """Ends the MLflow run with ``status`` (``"FINISHED"``; ``"KILLED"`` for
+        a run stopped to resume later), if it is still the active run."""
+        import mlflow
+
+        active = mlflow.active_run()
+        if active is not None and active.info.run_id == self.run_id:
+            mlflow.end_run(status)
+
+    def log_video(self, name: str, video, **kwargs) -> None:
+        """TorchRL's ``log_video``, to this run even once it has ended (the
+        recipes record the final policy's video after the run finished)."""
+        import mlflow
+
+        active = mlflow.active_run()
+        if active is not None and active.info.run_id == self.run_id:
+            return super().log_video(name, video, **kwargs)
+        with mlflow.start_run(run_id=self.run_id):
+            return super().log_video(name, video, **kwargs)
+
     def _checkpoint_state(self) -> dict[str, Any]:
         return {**super()._checkpoint_state(), "run_id": self.run_id}
+
+    def _load_checkpoint_state(self, state_dict: Mapping[str, Any]) -> None:
+        # The experiment's id is this store's (_create_experiment): a checkpoint
+        # written before the run id was saved holds another store's.
+        state = {k: v for k, v in state_dict.items() if k not in ("id", "run_id")}
+        super()._load_checkpoint_state(state)
+
+
+def _end_logger_run(logger, status: str) -> None:
+    """Ends the logger's run where the backend keeps one open per process
+    (MLflow's active run): the next job of a sweep's worker starts its own."""
+    if isinstance(logger, RunMLFlowLogger):
+        logger.end(status)
 
 
 def get_run_logger(
