@@ -1,5 +1,6 @@
 """How far into a MiniGrid task a run's final policy gets: the share of its
-episodes in which the agent carries a ball, a key or a box, opens a door, succeeds.
+episodes in which the agent moves a ball, carries a key or a box, opens or unlocks
+a door, succeeds.
 
 A return of 0 says a policy never finishes a task, not how close it came. On the
 suite's object tasks (ObstructedMaze: move the ball that blocks the door, open the
@@ -7,19 +8,27 @@ box, take the key, unlock the door, fetch the ball behind it; KeyCorridor, DoorK
 each step of the chain shows in the agent's own view, so the episodes of a final
 policy say how far it gets. For each run (its checkpoint's policy, rebuilt as the
 recipe built it), this command plays ``--envs`` envs of the run's task and backend
-for ``--steps`` steps (actions sampled from the policy, as in training; envs seeded
-``--seed``), and over the episodes that end within them writes one row per run:
+(actions sampled from the policy, as in training; envs seeded ``--seed``) until
+each has ended ``--episodes`` episodes (``episodes x max_steps`` steps: an episode
+lasts at most the task's ``max_steps``), and over the first ``--episodes`` of each
+env (not the episodes that end first, which would favour short, successful ones)
+writes one row per run:
 
-- ``episodes``: how many ended (episodes still running at the last step are left
-  out; ``--steps`` should hold a few of the task's ``max_steps``);
+- ``episodes``: how many were scored (``envs x episodes``);
 - ``carried_ball``, ``carried_key``, ``carried_box``: the share in which the agent
-  held one at some step (MiniGrid draws the carried object in the agent's cell of
-  its view);
-- ``opened_door``: the share in which an open door came into view. The suite's
-  tasks start with every door closed or locked, so an open door is one the agent
-  opened;
-- ``success``: the share that ended with a positive reward (MiniGrid rewards only
-  reaching the goal).
+  held one at a step that was not the episode's rewarded last step (MiniGrid draws
+  the carried object in the agent's cell of its view; on KeyCorridor and
+  ObstructedMaze, picking up the target ball is the success itself, so
+  ``carried_ball`` is another ball: ObstructedMaze's blocking ball moved). A box
+  is opened by a toggle, not carried: carrying one is a detour;
+- ``opened_door``: the share in which an open door came into view (the suite's
+  tasks start with every door closed or locked, so it is one the agent opened;
+  on KeyCorridor, MultiRoom and ObstructedMaze-2Dlhb some doors are unlocked);
+- ``unlocked_door``: the share in which the agent unlocked a door (the door in
+  front of it locked before a step, open after it);
+- ``success``: the share that ended with a positive reward (the task solved).
+
+A run trained with ``env.stochasticity`` is refused: its noise is not replayed.
 
 Usage::
 
@@ -33,6 +42,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import NamedTuple
 
 import pandas as pd
 import torch
@@ -43,68 +53,109 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 __all__ = [
     "COLUMNS",
     "MILESTONES",
+    "Episodes",
     "episode_milestones",
     "load_policy",
+    "max_steps",
     "policy_episodes",
     "run_milestones",
 ]
 
 #: MiniGrid's object indices (``minigrid.core.constants.OBJECT_TO_IDX``) and its
-#: door state for an open door (``STATE_TO_IDX["open"]``).
-_DOOR, _KEY, _BALL, _BOX, _OPEN = 4, 5, 6, 7, 0
+#: door states (``STATE_TO_IDX``: open 0, locked 2).
+_DOOR, _KEY, _BALL, _BOX, _OPEN, _LOCKED = 4, 5, 6, 7, 0, 2
+#: The agent's cell of its 7x7 view ([x, y]) and the cell in front of it.
+_AGENT, _FRONT = (3, 6), (3, 5)
 
 #: The milestones, in the order of the output's columns.
-MILESTONES = ("carried_ball", "carried_key", "carried_box", "opened_door", "success")
+MILESTONES = (
+    "carried_ball",
+    "carried_key",
+    "carried_box",
+    "opened_door",
+    "unlocked_door",
+    "success",
+)
 
 #: Columns of the output, per run.
 COLUMNS = ("run", "setting", "seed", "frames", "episodes", *MILESTONES)
 
 
-def episode_milestones(
-    image: torch.Tensor, reward: torch.Tensor, done: torch.Tensor
-) -> pd.DataFrame:
-    """One row per episode that ends within ``[envs, steps]`` observations, a
-    column per milestone (:data:`MILESTONES`, booleans).
+class Episodes(NamedTuple):
+    """Steps of ``envs`` envs, each ``[envs, steps, ...]``: the views before
+    (``image``) and after (``next_image``) each step, its ``reward``, ``done`` and
+    ``action``."""
 
-    Args:
-        image: ``[envs, steps, 7, 7, 3]``, the egocentric views after each step
-            (the ``("next", "image")`` of a rollout; the agent at ``(3, 6)``).
-        reward: ``[envs, steps]``, the reward of each step.
-        done: ``[envs, steps]``, whether the episode ended at that step.
+    image: torch.Tensor
+    next_image: torch.Tensor
+    reward: torch.Tensor
+    done: torch.Tensor
+    action: torch.Tensor
+
+
+def episode_milestones(episodes: Episodes, per_env: int | None = None) -> pd.DataFrame:
+    """One row per episode that ends within the steps, a column per milestone
+    (:data:`MILESTONES`, booleans); with ``per_env``, each env's first ``per_env``
+    episodes only.
+
+    Raises:
+        ValueError: a view is not MiniGrid's encoded 7x7 one, or an env ended fewer
+            than ``per_env`` episodes.
 
     Examples:
-        >>> image = torch.zeros(1, 4, 7, 7, 3, dtype=torch.uint8)
-        >>> image[0, 1, 3, 6, 0] = 5  # carries a key at step 1
-        >>> image[0, 3, 2, 2] = torch.tensor([4, 0, 0])  # an open door, step 3
+        >>> image = torch.ones(1, 4, 7, 7, 3, dtype=torch.uint8)
+        >>> after = image.clone()
+        >>> after[0, 1, 3, 6, 0] = 5  # carries a key after step 1
+        >>> after[0, 3, 2, 2] = torch.tensor([4, 0, 0])  # an open door, step 3
         >>> done = torch.tensor([[False, True, False, True]])
         >>> reward = torch.tensor([[0.0, 0.0, 0.0, 0.5]])
-        >>> episode_milestones(image, reward, done).astype(int).to_dict("list")
+        >>> steps = Episodes(image, after, reward, done, torch.zeros(1, 4))
+        >>> episode_milestones(steps).astype(int).to_dict("list")
         ... # doctest: +NORMALIZE_WHITESPACE
         {'carried_ball': [0, 0], 'carried_key': [1, 0], 'carried_box': [0, 0],
-         'opened_door': [0, 1], 'success': [0, 1]}
+         'opened_door': [0, 1], 'unlocked_door': [0, 0], 'success': [0, 1]}
     """
-    if image.dim() != 5 or image.shape[-3:] != (7, 7, 3):
-        raise ValueError(
-            "image must be [envs, steps, 7, 7, 3] (MiniGrid's egocentric view, "
-            f"encoded), got {tuple(image.shape)}"
-        )
-    envs, steps = image.shape[:2]
-    reward = reward.reshape(envs, steps)
-    done = done.reshape(envs, steps).bool()
-    carried = image[..., 3, 6, 0]
-    seen = image.flatten(2, 3)  # [envs, steps, 49, 3]
-    open_door = ((seen[..., 0] == _DOOR) & (seen[..., 2] == _OPEN)).any(-1)
+    image, after = episodes.image, episodes.next_image
+    for view in (image, after):
+        if view.dim() != 5 or tuple(view.shape[-3:]) != (7, 7, 3):
+            raise ValueError(
+                "views must be [envs, steps, 7, 7, 3] (MiniGrid's egocentric view, "
+                f"encoded), got {tuple(view.shape)}"
+            )
+    envs, steps = after.shape[:2]
+    reward = episodes.reward.reshape(envs, steps)
+    done = episodes.done.reshape(envs, steps).bool()
+    success = reward > 0
+    # the rewarded pickup of the target ball ends the episode carrying it
+    carried = after[..., _AGENT[0], _AGENT[1], 0].masked_fill(success, 0)
+    seen = after.flatten(2, 3)  # [envs, steps, 49, 3]
+    front, front_after = (
+        image[..., _FRONT[0], _FRONT[1], :],
+        after[..., _FRONT[0], _FRONT[1], :],
+    )
     per_step = {
         "carried_ball": carried == _BALL,
         "carried_key": carried == _KEY,
         "carried_box": carried == _BOX,
-        "opened_door": open_door,
-        "success": reward > 0,
+        "opened_door": ((seen[..., 0] == _DOOR) & (seen[..., 2] == _OPEN)).any(-1),
+        "unlocked_door": (front[..., 0] == _DOOR)
+        & (front[..., 2] == _LOCKED)
+        & (front_after[..., 0] == _DOOR)
+        & (front_after[..., 2] == _OPEN),
+        "success": success,
     }
     rows = []
     for env in range(envs):
+        ends = done[env].nonzero().flatten().tolist()
+        if per_env is not None:
+            if len(ends) < per_env:
+                raise ValueError(
+                    f"env {env} ended {len(ends)} episodes in {steps} steps, "
+                    f"expected at least {per_env}"
+                )
+            ends = ends[:per_env]
         start = 0
-        for end in done[env].nonzero().flatten().tolist():
+        for end in ends:
             rows.append(
                 {k: bool(v[env, start : end + 1].any()) for k, v in per_step.items()}
             )
@@ -136,6 +187,12 @@ def load_policy(run_dir: str | Path):
             f"MiniGrid env.name), got env.name {env_name!r} and components "
             f"{sorted(k for k in ckpt if k not in ('config', 'frames'))}"
         )
+    if config["env"].get("stochasticity"):
+        raise ValueError(
+            f"{path}: the run was trained with env.stochasticity="
+            f"{config['env']['stochasticity']}; milestones are read on the task "
+            "without noise (expected env.stochasticity 0)"
+        )
     # every MiniGrid env has the same 7 actions (left, right, forward, pickup,
     # drop, toggle, done)
     model, _ = make_actor_critic(Categorical(7), intrinsic_critic=False)
@@ -144,9 +201,21 @@ def load_policy(run_dir: str | Path):
     return model.get_policy_operator(), config, ckpt.get("frames")
 
 
-def policy_episodes(policy, config: dict, envs: int, steps: int, seed: int):
-    """``(image, reward, done)`` of ``envs`` envs of the run's task and backend,
-    ``steps`` steps of ``policy`` (sampled actions), each ``[envs, steps, ...]``."""
+def max_steps(env_name: str) -> int:
+    """The task's ``max_steps`` (minigrid's; envpool's tasks keep it)."""
+    import gymnasium as gym
+    import minigrid  # noqa: F401  (registers the MiniGrid envs)
+
+    env = gym.make(env_name)
+    try:
+        return int(env.unwrapped.max_steps)
+    finally:
+        env.close()
+
+
+def policy_episodes(policy, config: dict, envs: int, steps: int, seed: int) -> Episodes:
+    """:class:`Episodes` of ``envs`` envs of the run's task and backend, ``steps``
+    steps of ``policy`` with sampled actions (as the training collector's)."""
     from tensordict.nn import InteractionType, set_interaction_type
 
     from torchrl_surprise.envs import make_minigrid_env
@@ -160,27 +229,34 @@ def policy_episodes(policy, config: dict, envs: int, steps: int, seed: int):
     with torch.no_grad(), set_interaction_type(InteractionType.RANDOM):
         rollout = env.rollout(steps, policy, break_when_any_done=False)
     env.close()
-    return (
+    return Episodes(
+        rollout["image"],
         rollout["next", "image"],
         rollout["next", "reward"].reshape(envs, steps),
         rollout["next", "done"].reshape(envs, steps),
+        rollout["action"].reshape(envs, steps),
     )
 
 
-def run_milestones(run_dir: str | Path, loaded, episodes) -> dict:
+def run_milestones(
+    run_dir: str | Path, loaded, episodes: Episodes, per_env: int
+) -> dict:
     """One run's row of :data:`COLUMNS`: ``loaded`` from :func:`load_policy`, its
-    ``episodes`` from :func:`policy_episodes`."""
+    ``episodes`` from :func:`policy_episodes`, each env's first ``per_env``."""
+    from common.labels import run_labels
+
     _, config, frames = loaded
-    table = episode_milestones(*episodes)
+    table = episode_milestones(episodes, per_env)
+    labels = run_labels(config, run_dir)
     row = {
         "run": str(run_dir),
-        "setting": config.get("setting") or "",
-        "seed": config.get("seed"),
+        "setting": labels["setting"],
+        "seed": labels["seed"],
         "frames": frames,
         "episodes": len(table),
     }
     for name in MILESTONES:
-        row[name] = round(float(table[name].mean()), 4) if len(table) else float("nan")
+        row[name] = round(float(table[name].mean()), 4)
     return row
 
 
@@ -190,8 +266,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         description=__doc__.split("\n\n", 1)[0],
     )
     parser.add_argument("runs", nargs="+", type=Path, help="run directories")
-    parser.add_argument("--envs", type=int, default=16, help="envs of the rollout")
-    parser.add_argument("--steps", type=int, default=1000, help="steps per env")
+    parser.add_argument("--envs", type=int, default=32, help="envs of the rollout")
+    parser.add_argument(
+        "--episodes", type=int, default=2, help="episodes scored per env"
+    )
     parser.add_argument("--seed", type=int, default=0, help="seed of the rollout")
     parser.add_argument("--out", type=Path, help="CSV to write")
     args = parser.parse_args(argv)
@@ -204,8 +282,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             parser.error(str(error))
     rows = []
     for run, (policy, config, _) in loaded.items():
-        episodes = policy_episodes(policy, config, args.envs, args.steps, args.seed)
-        rows.append(run_milestones(run, loaded[run], episodes))
+        steps = args.episodes * max_steps(config["env"]["name"])
+        episodes = policy_episodes(policy, config, args.envs, steps, args.seed)
+        rows.append(run_milestones(run, loaded[run], episodes, args.episodes))
     table = pd.DataFrame(rows, columns=list(COLUMNS))
     table = table.sort_values(["setting", "seed"], kind="stable")
     if args.out is not None:
