@@ -348,6 +348,24 @@ def test_a_resumed_mlflow_run_continues_the_same_run(tmp_path):
     assert steps[0] <= 64 and steps[-1] == frames + 64, steps
 
 
+def test_wandb_runs_one_after_another_in_a_process_each_log_to_their_own(
+    tmp_path, monkeypatch
+):
+    # a sweep's worker (joblib's loky reuses processes) runs job after job: by
+    # default W&B hands a second wandb.init in a process the first run
+    pytest.importorskip("wandb")
+    monkeypatch.setenv("WANDB_MODE", "offline")
+    monkeypatch.setenv("WANDB_SILENT", "true")
+    first = get_run_logger("wandb", tmp_path / "a", "exp", "p")
+    first.log_scalar("train/x", 1.0, step=64)
+    first_id = first.experiment.id
+    second = get_run_logger("wandb", tmp_path / "b", "exp", "p")
+    second.log_scalar("train/x", 2.0, step=64)
+    assert second.experiment.id != first_id
+    assert first.state_dict()["local"]["id"] == first_id
+    second.experiment.finish()
+
+
 @pytest.fixture
 def mlflow_here(monkeypatch):
     """mlflow, with its process-wide tracking URI and active run put back after."""

@@ -1872,7 +1872,9 @@ def get_run_logger(
         return _mlflow_run_logger(Path(logs), experiment_name, state_dict)
     kwargs: dict[str, Any] = {}
     if backend == "wandb":
-        kwargs["wandb_kwargs"] = {"project": project}
+        # reinit=True ("finish_previous"): a sweep's worker runs job after job in
+        # one process, where W&B would hand the next job the previous job's run
+        kwargs["wandb_kwargs"] = {"project": project, "reinit": True}
     if state_dict is not None and backend in RESUMED_LOGGERS:
         kwargs["state_dict"] = {
             **state_dict,
