@@ -268,13 +268,14 @@ def test_a_checkpoint_without_logger_state_still_resumes(tmp_path):
     run.finish("256 frames.", curves={})
 
 
-def test_a_resumed_wandb_run_continues_the_same_run(tmp_path):
-    pytest.importorskip("wandb")
-    run_dir = tmp_path / "run"
+def _stopped_and_resumed(run_dir, backend: str, env: dict) -> int:
+    """Runs the recipe with ``logger.backend=backend``, stops it by SIGTERM after
+    its first checkpoint, resumes it for 64 more frames; returns the frames it
+    stopped at."""
     cmd = [sys.executable, str(MAIN), f"hydra.run.dir={run_dir}", *TINY]
-    env = {**os.environ, "WANDB_MODE": "offline", "WANDB_SILENT": "true"}
+    cmd.append(f"logger.backend={backend}")
     proc = subprocess.Popen(
-        [*cmd, "logger.backend=wandb", "collector.total_frames=1000000"],
+        [*cmd, "collector.total_frames=1000000"],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         text=True,
@@ -289,13 +290,21 @@ def test_a_resumed_wandb_run_continues_the_same_run(tmp_path):
     assert proc.returncode == 128 + signal.SIGTERM, err[-3000:]
     frames = checkpoint_info(run_dir / CHECKPOINT_NAME)["frames"]
     resumed = subprocess.run(
-        [*cmd, "logger.backend=wandb", f"collector.total_frames={frames + 64}"],
+        [*cmd, f"collector.total_frames={frames + 64}"],
         capture_output=True,
         text=True,
         timeout=300,
         env=env,
     )
     assert resumed.returncode == 0, resumed.stderr[-3000:]
+    return frames
+
+
+def test_a_resumed_wandb_run_continues_the_same_run(tmp_path):
+    pytest.importorskip("wandb")
+    run_dir = tmp_path / "run"
+    env = {**os.environ, "WANDB_MODE": "offline", "WANDB_SILENT": "true"}
+    _stopped_and_resumed(run_dir, "wandb", env)
     # an offline W&B run is a directory offline-run-<time>-<run id>: both
     # processes logged to the one run id the checkpoint holds
     runs = sorted((run_dir / "logs" / "wandb").glob("offline-run-*"))
@@ -308,31 +317,8 @@ def test_a_resumed_wandb_run_continues_the_same_run(tmp_path):
 def test_a_resumed_mlflow_run_continues_the_same_run(tmp_path):
     mlflow = pytest.importorskip("mlflow")
     run_dir = tmp_path / "run"
-    cmd = [sys.executable, str(MAIN), f"hydra.run.dir={run_dir}", *TINY]
     env = {k: v for k, v in os.environ.items() if k != "MLFLOW_TRACKING_URI"}
-    proc = subprocess.Popen(
-        [*cmd, "logger.backend=mlflow", "collector.total_frames=1000000"],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=env,
-    )
-    try:
-        wait_for_checkpoint(run_dir / CHECKPOINT_NAME, min_frames=128)
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=120)
-    finally:
-        proc.kill()
-    assert proc.returncode == 128 + signal.SIGTERM, err[-3000:]
-    frames = checkpoint_info(run_dir / CHECKPOINT_NAME)["frames"]
-    resumed = subprocess.run(
-        [*cmd, "logger.backend=mlflow", f"collector.total_frames={frames + 64}"],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        env=env,
-    )
-    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    frames = _stopped_and_resumed(run_dir, "mlflow", env)
     # one run in the run's own SQLite store, holding both parts' steps
     client = mlflow.MlflowClient(f"sqlite:///{run_dir / 'logs' / 'mlflow.db'}")
     runs = [
