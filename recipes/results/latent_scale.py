@@ -39,6 +39,9 @@ import torch
 
 from torchrl_surprise.transforms import VAEEllipticalTransform
 
+# Run as a script: recipes/ holds the shared `common` and `results` packages.
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
 __all__ = ["COLUMNS", "bonus_stats", "load_elliptical", "random_episodes", "run_scale"]
 
 #: Columns of the output, per run.
