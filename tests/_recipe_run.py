@@ -57,6 +57,22 @@ def run_sweep(
     return proc
 
 
+def run_results_script(name: str, *args: str, cwd: Path) -> None:
+    """Runs ``recipes/results/<name>`` as the docs do: a script in a fresh process,
+    with nothing of ``recipes/`` importable but what it puts on ``sys.path``."""
+    script = Path(__file__).resolve().parents[1] / "recipes" / "results" / name
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    done = subprocess.run(
+        [sys.executable, str(script), *args],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=cwd,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+
+
 def assert_resume_refused(proc: subprocess.CompletedProcess, *changes: str) -> None:
     """``proc`` refused to resume a changed experiment, naming each of ``changes``."""
     assert proc.returncode != 0 and "the experiment changed" in proc.stderr, (

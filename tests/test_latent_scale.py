@@ -2,14 +2,10 @@
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
-from pathlib import Path
-
 import pandas as pd
 import pytest
 import torch
+from _recipe_run import run_results_script
 
 from results.latent_scale import main
 from torchrl_surprise import StateVAE
@@ -81,16 +77,10 @@ def test_the_documented_command_runs_as_a_script(tmp_path):
     # as docs/results.rst runs it: a script, with nothing of recipes/ importable
     # but what it puts on sys.path itself
     _run(tmp_path / "run", "elliptical")
-    script = Path(__file__).resolve().parents[1] / "recipes/results/latent_scale.py"
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
-    done = subprocess.run(
-        [sys.executable, str(script), str(tmp_path / "run"), "--envs", "2"]
-        + ["--steps", "20", "--out", str(tmp_path / "scale.csv")],
-        capture_output=True,
-        text=True,
-        env=env,
+    run_results_script(
+        "latent_scale.py",
+        str(tmp_path / "run"),
+        *("--envs", "2", "--steps", "20", "--out", str(tmp_path / "scale.csv")),
         cwd=tmp_path,
-        timeout=300,
     )
-    assert done.returncode == 0, done.stderr[-2000:]
     assert pd.read_csv(tmp_path / "scale.csv")["setting"].tolist() == ["elliptical_1"]

@@ -2,15 +2,11 @@
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
-from pathlib import Path
-
 import gymnasium as gym
 import pandas as pd
 import pytest
 import torch
+from _recipe_run import run_results_script
 from torchrl.data import Categorical
 
 from common.minigrid import make_actor_critic
@@ -162,16 +158,10 @@ def test_the_documented_command_runs_as_a_script(tmp_path):
     # as docs/results.rst runs it: a script, with nothing of recipes/ importable
     # but what it puts on sys.path itself
     _checkpoint(tmp_path / "run", "MiniGrid-DoorKey-5x5-v0")
-    script = Path(__file__).resolve().parents[1] / "recipes/results/milestones.py"
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
-    done = subprocess.run(
-        [sys.executable, str(script), str(tmp_path / "run"), "--envs", "2"]
-        + ["--episodes", "1", "--out", str(tmp_path / "m.csv")],
-        capture_output=True,
-        text=True,
-        env=env,
+    run_results_script(
+        "milestones.py",
+        str(tmp_path / "run"),
+        *("--envs", "2", "--episodes", "1", "--out", str(tmp_path / "m.csv")),
         cwd=tmp_path,
-        timeout=300,
     )
-    assert done.returncode == 0, done.stderr[-2000:]
     assert pd.read_csv(tmp_path / "m.csv")["episodes"].tolist() == [2]
