@@ -1792,13 +1792,19 @@ class RunMLFlowLogger(MLFlowLogger):
         """The MLflow run's id."""
         return self.experiment.info.run_id
 
+    def _active(self) -> bool:
+        """Whether this run is MLflow's active run (not ended)."""
+        import mlflow
+
+        active = mlflow.active_run()
+        return active is not None and active.info.run_id == self.run_id
+
     def end(self, status: str = "FINISHED") -> None:
         """Ends the MLflow run with ``status`` (``"FINISHED"``; ``"KILLED"`` for
         a run stopped to resume later), if it is still the active run."""
         import mlflow
 
-        active = mlflow.active_run()
-        if active is not None and active.info.run_id == self.run_id:
+        if self._active():
             mlflow.end_run(status)
 
     def log_video(self, name: str, video, **kwargs) -> None:
@@ -1806,8 +1812,7 @@ class RunMLFlowLogger(MLFlowLogger):
         recipes record the final policy's video after the run finished)."""
         import mlflow
 
-        active = mlflow.active_run()
-        if active is not None and active.info.run_id == self.run_id:
+        if self._active():
             return super().log_video(name, video, **kwargs)
         with mlflow.start_run(run_id=self.run_id):
             return super().log_video(name, video, **kwargs)
