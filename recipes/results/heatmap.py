@@ -85,6 +85,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from minigrid.core.constants import OBJECT_TO_IDX
 from tensordict import TensorDict
 
 # Run as a script: recipes/ holds the shared `common` and `results` packages.
@@ -116,8 +117,7 @@ CATEGORIES: tuple[str, ...] = ("doorway", "near_goal", "door_in_view", "other")
 UNMAPPED_VARIANTS: tuple[str, ...] = ("noveld",)
 """VAE variants without a map: their bonus pays a transition ``(s, s')``, not a state."""
 
-# minigrid.core.constants.OBJECT_TO_IDX
-_DOOR_ID = 4
+_DOOR_ID = OBJECT_TO_IDX["door"]
 # MiniGrid's directions: 0 right (+x), 1 down (+y), 2 left, 3 up.
 _NEIGHBOURS = ((1, 0), (0, 1), (-1, 0), (0, -1))
 

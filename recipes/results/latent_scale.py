@@ -29,7 +29,6 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -162,23 +161,13 @@ def run_scale(run_dir: str | Path, loaded, episodes) -> dict:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python recipes/results/latent_scale.py",
-        description=__doc__.split("\n\n", 1)[0],
-    )
-    parser.add_argument("runs", nargs="+", type=Path, help="run directories")
-    parser.add_argument("--envs", type=int, default=8, help="envs of the rollout")
+    from results.run_tools import checkpoint_parser, load_runs, write_table
+
+    parser = checkpoint_parser("latent_scale.py", __doc__, envs=8)
     parser.add_argument("--steps", type=int, default=600, help="steps per env")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the rollout")
-    parser.add_argument("--out", type=Path, help="CSV to write")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
-    loaded = {}
-    for run in args.runs:
-        try:
-            loaded[run] = load_elliptical(run)
-        except (FileNotFoundError, ValueError) as error:
-            parser.error(str(error))
+    loaded = load_runs(parser, args.runs, load_elliptical)
     episodes = {}
     rows = []
     for run, (_, config, _) in loaded.items():
@@ -186,12 +175,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if env not in episodes:
             episodes[env] = random_episodes(*env, args.envs, args.steps, args.seed)
         rows.append(run_scale(run, loaded[run], episodes[env]))
-    table = pd.DataFrame(rows, columns=list(COLUMNS))
-    if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        table.to_csv(args.out, index=False)
-        print(f"wrote {args.out}")
-    print(table.drop(columns="run").to_string(index=False))
+    write_table(pd.DataFrame(rows, columns=list(COLUMNS)), args.out)
     return 0
 
 

@@ -38,7 +38,6 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -46,6 +45,7 @@ from typing import NamedTuple
 
 import pandas as pd
 import torch
+from minigrid.core.constants import OBJECT_TO_IDX, STATE_TO_IDX
 
 # recipes/ holds what the recipes share (common), which rebuilds a run's policy
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -61,9 +61,8 @@ __all__ = [
     "run_milestones",
 ]
 
-#: MiniGrid's object indices (``minigrid.core.constants.OBJECT_TO_IDX``) and its
-#: door states (``STATE_TO_IDX``: open 0, locked 2).
-_DOOR, _KEY, _BALL, _BOX, _OPEN, _LOCKED = 4, 5, 6, 7, 0, 2
+_DOOR, _KEY, _BALL, _BOX = (OBJECT_TO_IDX[k] for k in ("door", "key", "ball", "box"))
+_OPEN, _LOCKED = STATE_TO_IDX["open"], STATE_TO_IDX["locked"]
 #: The agent's cell of its 7x7 view ([x, y]) and the cell in front of it.
 _AGENT, _FRONT = (3, 6), (3, 5)
 
@@ -261,37 +260,22 @@ def run_milestones(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python recipes/results/milestones.py",
-        description=__doc__.split("\n\n", 1)[0],
-    )
-    parser.add_argument("runs", nargs="+", type=Path, help="run directories")
-    parser.add_argument("--envs", type=int, default=32, help="envs of the rollout")
+    from results.run_tools import checkpoint_parser, load_runs, write_table
+
+    parser = checkpoint_parser("milestones.py", __doc__, envs=32)
     parser.add_argument(
         "--episodes", type=int, default=2, help="episodes scored per env"
     )
-    parser.add_argument("--seed", type=int, default=0, help="seed of the rollout")
-    parser.add_argument("--out", type=Path, help="CSV to write")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
-    loaded = {}
-    for run in args.runs:
-        try:
-            loaded[run] = load_policy(run)
-        except (FileNotFoundError, ValueError) as error:
-            parser.error(str(error))
+    loaded = load_runs(parser, args.runs, load_policy)
     rows = []
     for run, (policy, config, _) in loaded.items():
         steps = args.episodes * max_steps(config["env"]["name"])
         episodes = policy_episodes(policy, config, args.envs, steps, args.seed)
         rows.append(run_milestones(run, loaded[run], episodes, args.episodes))
     table = pd.DataFrame(rows, columns=list(COLUMNS))
-    table = table.sort_values(["setting", "seed"], kind="stable")
-    if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        table.to_csv(args.out, index=False)
-        print(f"wrote {args.out}")
-    print(table.drop(columns="run").to_string(index=False))
+    write_table(table.sort_values(["setting", "seed"], kind="stable"), args.out)
     return 0
 
 
