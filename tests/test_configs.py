@@ -15,7 +15,10 @@ from pathlib import Path
 
 import pytest
 from hydra import compose, initialize_config_dir
-from hydra._internal.config_loader_impl import ConfigLoaderImpl
+from hydra._internal.config_loader_impl import (
+    ConfigLoaderImpl,
+    get_overrides_dirname,
+)
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.errors import ConfigCompositionException
 from omegaconf import OmegaConf
@@ -29,6 +32,7 @@ from common.config import (
     validate_minigrid,
 )
 from common.minigrid import VAE_VARIANTS as VAE_TRANSFORMS
+from common.run import RESUMABLE_CHANGES, _flatten
 
 RECIPES = Path(__file__).resolve().parents[1] / "recipes"
 VALIDATE = {"minigrid": validate_minigrid, "ddpg_mujoco": validate_ddpg}
@@ -133,6 +137,39 @@ def test_a_jobs_values_go_on_its_composed_groups_as_hydra_puts_them():
         ConfigCompositionException, match="Error merging override seed=abc"
     ):
         with_values(groups, ["seed=abc"])
+
+
+@pytest.mark.parametrize("recipe", ["minigrid", "ddpg_mujoco"])
+def test_what_may_change_on_resume_does_not_name_a_sweep_runs_directory(recipe):
+    # A sweep rerun with a longer budget, other logging or checkpoints must find its
+    # runs: the keys Hydra leaves out of a job's directory name are exactly the
+    # config's entries under RESUMABLE_CHANGES (Hydra matches whole keys, not
+    # sections), and the experiment file that is the sweep's folder.
+    with initialize_config_dir(config_dir=str(RECIPES / recipe), version_base=None):
+        cfg = compose("config", return_hydra_config=True)
+    excluded = list(cfg.hydra.job.config.override_dirname.exclude_keys)
+    config = OmegaConf.to_container(cfg, resolve=False)
+    del config["hydra"]
+    resumable = [
+        name
+        for name in _flatten(config)
+        if any(name == a or name.startswith(a + ".") for a in RESUMABLE_CHANGES)
+    ]
+    assert len(resumable) > len(RESUMABLE_CHANGES)  # sections key by key
+    assert sorted(excluded) == sorted(["experiment", *resumable])
+    overrides = OverridesParser.create().parse_overrides(
+        [
+            "+experiment=x",
+            "seed=3",
+            "+setting=s",
+            "eval.episodes=2",
+            "logger.log_interval=9",
+            "experiment_name=y",
+            "collector.total_frames=7",
+        ]
+    )
+    dirname = get_overrides_dirname(overrides, excluded, item_sep=",", kv_sep="=")
+    assert dirname == "+setting=s,seed=3"
 
 
 @pytest.mark.parametrize("schema", [MiniGridConfig, DDPGConfig])

@@ -380,8 +380,12 @@ def test_sweep_runs_each_job_once_and_a_rerun_starts_no_new_work(
     assert len(names) == 2 * seeds and any("+setting=vae" in n for n in names)
     assert all(load_checkpoint(p)["frames"] == 256 for p in ckpts)
     mtimes = [p.stat().st_mtime_ns for p in ckpts]
-    again = subprocess.run(sweep, capture_output=True, text=True, timeout=600)
+    # Rerun with what may change on resume (other evaluation and logging): the
+    # jobs find their directories, and there is nothing to do.
+    rerun = [*sweep, "eval.episodes=2", "logger.log_interval=2"]
+    again = subprocess.run(rerun, capture_output=True, text=True, timeout=600)
     assert again.returncode == 0, again.stderr[-3000:]
+    assert sorted(p.parent.name for p in tmp_path.glob("*/.hydra")) == names
     assert [p.stat().st_mtime_ns for p in ckpts] == mtimes
     if launcher != "local":
         return

@@ -846,9 +846,11 @@ RESUMABLE_CHANGES: tuple[str, ...] = (
 
 They decide how long a run goes on, what it reports and where it is found
 (``experiment_name``: a sweep's runs moved into the folder of an experiment
-config renamed since resume there; a name given on the command line is also
-part of each run folder's name), not what it learns; any other difference
-between the checkpoint's config and the resumed one is refused.
+config renamed since resume there), not what it learns; any other difference
+between the checkpoint's config and the resumed one is refused. Nor do they name
+a sweep job's directory (each recipe's ``config.yaml`` lists them key by key in
+``hydra.job.config.override_dirname.exclude_keys``), so a sweep rerun with them
+changed finds its runs.
 """
 
 RESUME_MODES: tuple[str, ...] = ("auto", "true", "false")
