@@ -47,6 +47,9 @@ def _played(env_id: str, seed: int, actions=None) -> Episodes:
     )
 
 
+_KEY_AT_DOOR = ("saw_locked_door_with_key", "faced_locked_door_with_key")
+
+
 @pytest.mark.parametrize(
     "env_id, reached",
     [
@@ -54,9 +57,9 @@ def _played(env_id: str, seed: int, actions=None) -> Episodes:
         # target ball (the success, not counted as carrying)
         (
             "MiniGrid-ObstructedMaze-1Dlhb-v0",
-            {"carried_ball", "carried_key", "unlocked_door"},
+            {"carried_ball", "carried_key", *_KEY_AT_DOOR, "unlocked_door"},
         ),
-        ("MiniGrid-DoorKey-5x5-v0", {"carried_key", "unlocked_door"}),
+        ("MiniGrid-DoorKey-5x5-v0", {"carried_key", *_KEY_AT_DOOR, "unlocked_door"}),
         # unlocked doors only: opened, none unlocked, nothing carried
         ("MiniGrid-MultiRoom-N2-S4-v0", set()),
     ],
@@ -67,6 +70,24 @@ def test_the_oracles_solution_reaches_every_milestone_on_its_way(env_id, reached
     row = table.iloc[0]
     expected = reached | {"opened_door", "success"}
     assert {name for name in MILESTONES if row[name]} == expected
+
+
+def test_a_key_brought_to_the_locked_door_and_not_used_is_told_from_one_kept_away():
+    # DoorKey-5x5, seed 1: the oracle takes the key (the locked door in view),
+    # turns to face the door, unlocks it. Cut after each step.
+    env = gym.make("MiniGrid-DoorKey-5x5-v0")
+    env.reset(seed=1)
+    actions = solve_minigrid(env.unwrapped).actions
+    env.close()
+    reached = []
+    for n in (1, 2, 3):
+        episode = _played("MiniGrid-DoorKey-5x5-v0", seed=1, actions=actions[:n])
+        episode.done[0, -1] = True
+        row = episode_milestones(episode).iloc[0]
+        reached.append({name for name in MILESTONES if row[name]})
+    assert reached[0] == {"carried_key", "saw_locked_door_with_key"}
+    assert reached[1] == {"carried_key", *_KEY_AT_DOOR}
+    assert reached[2] == {"carried_key", *_KEY_AT_DOOR, "opened_door", "unlocked_door"}
 
 
 def _joined(*parts: Episodes) -> Episodes:
@@ -82,7 +103,13 @@ def test_each_episode_is_scored_on_its_own_steps_and_an_unfinished_one_left_out(
     table = episode_milestones(_joined(solved, idle, cut))
     assert len(table) == 2
     reached = {name for name in MILESTONES if table.iloc[0][name]}
-    assert reached == {"carried_key", "opened_door", "unlocked_door", "success"}
+    assert reached == {
+        "carried_key",
+        *_KEY_AT_DOOR,
+        "opened_door",
+        "unlocked_door",
+        "success",
+    }
     assert not table.iloc[1].any()
     # each env's first episodes only, and an env short of them is refused
     assert len(episode_milestones(_joined(solved, idle), per_env=1)) == 1

@@ -21,6 +21,10 @@ writes one row per run:
   ObstructedMaze, picking up the target ball is the success itself, so
   ``carried_ball`` is another ball: ObstructedMaze's blocking ball moved). A box
   is opened by a toggle, not carried: carrying one is a detour;
+- ``saw_locked_door_with_key``, ``faced_locked_door_with_key``: the share in
+  which the agent, holding a key, had a locked door in view, or in the cell in
+  front of it (where a toggle unlocks it): they tell a policy that never brings
+  the key back to the door from one that reaches it and does not unlock it;
 - ``opened_door``: the share in which an open door came into view (the suite's
   tasks start with every door closed or locked, so it is one the agent opened;
   on KeyCorridor, MultiRoom and ObstructedMaze-2Dlhb some doors are unlocked);
@@ -71,6 +75,8 @@ MILESTONES = (
     "carried_ball",
     "carried_key",
     "carried_box",
+    "saw_locked_door_with_key",
+    "faced_locked_door_with_key",
     "opened_door",
     "unlocked_door",
     "success",
@@ -112,6 +118,7 @@ def episode_milestones(episodes: Episodes, per_env: int | None = None) -> pd.Dat
         >>> episode_milestones(steps).astype(int).to_dict("list")
         ... # doctest: +NORMALIZE_WHITESPACE
         {'carried_ball': [0, 0], 'carried_key': [1, 0], 'carried_box': [0, 0],
+         'saw_locked_door_with_key': [0, 0], 'faced_locked_door_with_key': [0, 0],
          'opened_door': [0, 1], 'unlocked_door': [0, 0], 'success': [0, 1]}
     """
     image, after = episodes.image, episodes.next_image
@@ -132,10 +139,14 @@ def episode_milestones(episodes: Episodes, per_env: int | None = None) -> pd.Dat
         image[..., _FRONT[0], _FRONT[1], :],
         after[..., _FRONT[0], _FRONT[1], :],
     )
+    locked = (seen[..., 0] == _DOOR) & (seen[..., 2] == _LOCKED)
+    locked_front = (front_after[..., 0] == _DOOR) & (front_after[..., 2] == _LOCKED)
     per_step = {
         "carried_ball": carried == _BALL,
         "carried_key": carried == _KEY,
         "carried_box": carried == _BOX,
+        "saw_locked_door_with_key": (carried == _KEY) & locked.any(-1),
+        "faced_locked_door_with_key": (carried == _KEY) & locked_front,
         "opened_door": ((seen[..., 0] == _DOOR) & (seen[..., 2] == _OPEN)).any(-1),
         "unlocked_door": (front[..., 0] == _DOOR)
         & (front[..., 2] == _LOCKED)
