@@ -27,6 +27,7 @@ from results.aggregate import (
     find_runs,
     main,
     merge_run_data,
+    probability_of_improvement,
     read_oracle,
     runs_metadata,
     setting_label,
@@ -256,6 +257,21 @@ def test_probability_of_improvement(sweep):
     vae_over_none = table[table["setting_x"].str.startswith("bonus=vae")].iloc[0]
     assert vae_over_none["probability"] == pytest.approx(1.0)  # every vae seed > 0
     assert vae_over_none["seeds_x"] == vae_over_none["seeds_y"] == 4
+
+
+def test_probability_of_improvement_is_rliables_to_the_bit():
+    from rliable import metrics
+
+    rng = np.random.default_rng(0)
+    for runs_x, runs_y, tasks in [(5, 5, 1), (3, 7, 1), (4, 2, 3), (1, 1, 1)]:
+        for _ in range(50):
+            # few distinct values: ties within and across settings, and resamples
+            # that are the same array (rliable's 0.5 without a test)
+            x = rng.integers(0, 3, (runs_x, tasks)) / 2
+            y = rng.integers(0, 3, (runs_y, tasks)) / 2
+            for a, b in [(x, y), (x, x)]:
+                expected = metrics.probability_of_improvement(a, b)
+                assert probability_of_improvement(a, b) == expected
 
 
 def test_from_data_regenerates_identical_tables(sweep, tmp_path):

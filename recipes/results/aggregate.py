@@ -172,6 +172,7 @@ __all__ = [
     "plot_curves",
     "plot_levels",
     "plot_profiles",
+    "probability_of_improvement",
     "read_oracle",
     "task_label",
     "report_table",
@@ -971,6 +972,25 @@ def summarize(
     return summary.round(4)
 
 
+def probability_of_improvement(scores_x: np.ndarray, scores_y: np.ndarray) -> float:
+    """P(X > Y) + P(X = Y) / 2 for a run of X and a run of Y drawn at random, per
+    task (a column), averaged over tasks: rliable's
+    ``metrics.probability_of_improvement``, the same numbers.
+
+    rliable counts through SciPy's Mann-Whitney U test, about a millisecond a
+    call, and a bootstrap calls it 2,000 times for each pair of settings; this
+    counts the pairs at once in NumPy (the U statistic is that count).
+
+    Examples:
+        >>> probability_of_improvement(np.array([[1.0], [2.0]]), np.array([[0.0], [2.0]]))
+        0.625
+    """
+    x, y = np.asarray(scores_x), np.asarray(scores_y)
+    pairs = x[:, None, :] - y[None, :, :]  # runs of X x runs of Y x tasks
+    wins = (pairs > 0).sum(axis=(0, 1)) + 0.5 * (pairs == 0).sum(axis=(0, 1))
+    return float(np.mean(wins / (len(x) * len(y))))
+
+
 def improvement_probabilities(
     data: pd.DataFrame,
     oracle: Mapping[str, float] | None = None,
@@ -981,8 +1001,8 @@ def improvement_probabilities(
     """Per task, P(setting X beats setting Y) for every ordered pair of settings.
 
     The probability that a seed of X ends above a seed of Y on the final
-    (normalised) ``train/episode_return`` (rliable's
-    ``metrics.probability_of_improvement``), with a 95% stratified-bootstrap CI.
+    (normalised) ``train/episode_return`` (:func:`probability_of_improvement`,
+    rliable's), with a 95% stratified-bootstrap CI (rliable's).
 
     Returns:
         ``task, budget, setting_x, setting_y, seeds_x, seeds_y, probability,
@@ -997,8 +1017,6 @@ def improvement_probabilities(
         0         x          1.0
         1         y          0.0
     """
-    from rliable import metrics
-
     finals = final_scores(data, oracle, budget)
     finals = finals[finals["metric"] == MAIN_METRIC]
     rows = []
@@ -1014,7 +1032,7 @@ def improvement_probabilities(
                 stream = _bootstrap_seed(seed, "improvement", task, x, y)
                 point, interval = _interval_estimate(
                     [scores_x, scores_y],
-                    metrics.probability_of_improvement,
+                    probability_of_improvement,
                     reps,
                     stream,
                 )
