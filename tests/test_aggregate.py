@@ -272,6 +272,15 @@ def test_probability_of_improvement_is_rliables_to_the_bit():
             for a, b in [(x, y), (x, x)]:
                 expected = metrics.probability_of_improvement(a, b)
                 assert probability_of_improvement(a, b) == expected
+    # scores rliable takes that a subtraction would get wrong
+    inf, nan = np.inf, np.nan
+    for a, b in [
+        (np.array([[inf], [1.0]]), np.array([[inf], [0.0]])),
+        (np.array([[nan], [1.0]]), np.array([[0.0], [2.0]])),
+        (np.array([[0], [255]], np.uint8), np.array([[1], [3]], np.uint8)),
+    ]:
+        expected = metrics.probability_of_improvement(a, b)
+        np.testing.assert_equal(probability_of_improvement(a, b), expected)
 
 
 def test_from_data_regenerates_identical_tables(sweep, tmp_path):

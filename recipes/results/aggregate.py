@@ -985,10 +985,13 @@ def probability_of_improvement(scores_x: np.ndarray, scores_y: np.ndarray) -> fl
         >>> probability_of_improvement(np.array([[1.0], [2.0]]), np.array([[0.0], [2.0]]))
         0.625
     """
-    x, y = np.asarray(scores_x), np.asarray(scores_y)
-    pairs = x[:, None, :] - y[None, :, :]  # runs of X x runs of Y x tasks
-    wins = (pairs > 0).sum(axis=(0, 1)) + 0.5 * (pairs == 0).sum(axis=(0, 1))
-    return float(np.mean(wins / (len(x) * len(y))))
+    x, y = np.asarray(scores_x)[:, None, :], np.asarray(scores_y)[None, :, :]
+    # runs of X x runs of Y x tasks; compared, not subtracted (no overflow, and
+    # inf ties with inf); a task with a NaN score is NaN, as in rliable
+    wins = (x > y).sum(axis=(0, 1)) + 0.5 * (x == y).sum(axis=(0, 1))
+    unknown = np.isnan(x).any(axis=(0, 1)) | np.isnan(y).any(axis=(0, 1))
+    per_task = np.where(unknown, np.nan, wins / (x.shape[0] * y.shape[1]))
+    return float(np.mean(per_task))
 
 
 def improvement_probabilities(
