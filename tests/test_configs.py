@@ -142,9 +142,10 @@ def test_a_jobs_values_go_on_its_composed_groups_as_hydra_puts_them():
 @pytest.mark.parametrize("recipe", ["minigrid", "ddpg_mujoco"])
 def test_what_may_change_on_resume_does_not_name_a_sweep_runs_directory(recipe):
     # A sweep rerun with a longer budget, other logging or checkpoints must find its
-    # runs: the keys Hydra leaves out of a job's directory name are exactly the
-    # config's entries under RESUMABLE_CHANGES (Hydra matches whole keys, not
-    # sections), and the experiment file that is the sweep's folder.
+    # runs: the keys Hydra leaves out of a job's directory name are exactly
+    # RESUMABLE_CHANGES' entries and sections, and each key under those sections
+    # (Hydra matches whole keys), and the experiment file that is the sweep's
+    # folder.
     with initialize_config_dir(config_dir=str(RECIPES / recipe), version_base=None):
         cfg = compose("config", return_hydra_config=True)
     excluded = list(cfg.hydra.job.config.override_dirname.exclude_keys)
@@ -156,7 +157,8 @@ def test_what_may_change_on_resume_does_not_name_a_sweep_runs_directory(recipe):
         if any(name == a or name.startswith(a + ".") for a in RESUMABLE_CHANGES)
     ]
     assert len(resumable) > len(RESUMABLE_CHANGES)  # sections key by key
-    assert sorted(excluded) == sorted(["experiment", *resumable])
+    expected = {"experiment", *RESUMABLE_CHANGES, *resumable}
+    assert sorted(excluded) == sorted(expected)
     overrides = OverridesParser.create().parse_overrides(
         [
             "+experiment=x",
@@ -166,6 +168,7 @@ def test_what_may_change_on_resume_does_not_name_a_sweep_runs_directory(recipe):
             "logger.log_interval=9",
             "experiment_name=y",
             "collector.total_frames=7",
+            "checkpoint={interval_frames:5}",
         ]
     )
     dirname = get_overrides_dirname(overrides, excluded, item_sep=",", kv_sep="=")
