@@ -90,6 +90,28 @@ def test_a_key_brought_to_the_locked_door_and_not_used_is_told_from_one_kept_awa
     assert reached[2] == {"carried_key", *_KEY_AT_DOOR, "opened_door", "unlocked_door"}
 
 
+def test_a_key_counts_only_at_a_locked_door_of_its_colour():
+    # one step: the agent holds a yellow key (colour 4) facing a locked door
+    # (state 2) of colour 4, then of colour 1 (ObstructedMaze-2Dlhb has a door
+    # of each of two colours); the view is otherwise walls
+    rows = []
+    for door_colour in (4, 1):
+        view = torch.full((1, 1, 7, 7, 3), 0, dtype=torch.uint8)
+        view[..., 0] = 2  # walls
+        view[0, 0, 3, 6] = torch.tensor([5, 4, 0], dtype=torch.uint8)  # the key
+        view[0, 0, 3, 5] = torch.tensor([4, door_colour, 2], dtype=torch.uint8)
+        steps = Episodes(
+            view,
+            view,
+            torch.zeros(1, 1),
+            torch.ones(1, 1, dtype=torch.bool),
+            torch.zeros(1, 1),
+        )
+        row = episode_milestones(steps).iloc[0]
+        rows.append({name for name in MILESTONES if row[name]})
+    assert rows == [{"carried_key", *_KEY_AT_DOOR}, {"carried_key"}]
+
+
 def _joined(*parts: Episodes) -> Episodes:
     return Episodes(*(torch.cat(fields, 1) for fields in zip(*parts, strict=True)))
 

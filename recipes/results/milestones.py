@@ -1,6 +1,6 @@
 """How far into a MiniGrid task a run's final policy gets: the share of its
-episodes in which the agent moves a ball, carries a key or a box, opens or unlocks
-a door, succeeds.
+episodes in which the agent moves a ball, carries a key or a box, brings a key to
+its locked door, opens or unlocks a door, succeeds.
 
 A return of 0 says a policy never finishes a task, not how close it came. On the
 suite's object tasks (ObstructedMaze: move the ball that blocks the door, open the
@@ -22,9 +22,10 @@ writes one row per run:
   ``carried_ball`` is another ball: ObstructedMaze's blocking ball moved). A box
   is opened by a toggle, not carried: carrying one is a detour;
 - ``saw_locked_door_with_key``, ``faced_locked_door_with_key``: the share in
-  which the agent, holding a key, had a locked door in view, or in the cell in
-  front of it (where a toggle unlocks it): they tell a policy that never brings
-  the key back to the door from one that reaches it and does not unlock it;
+  which the agent, holding a key, had a locked door of the key's colour in view,
+  or in the cell in front of it (where a toggle unlocks it): they tell a policy
+  that never brings the key back to its door from one that reaches it and does
+  not unlock it;
 - ``opened_door``: the share in which an open door came into view (the suite's
   tasks start with every door closed or locked, so it is one the agent opened;
   on KeyCorridor, MultiRoom and ObstructedMaze-2Dlhb some doors are unlocked);
@@ -139,8 +140,18 @@ def episode_milestones(episodes: Episodes, per_env: int | None = None) -> pd.Dat
         image[..., _FRONT[0], _FRONT[1], :],
         after[..., _FRONT[0], _FRONT[1], :],
     )
-    locked = (seen[..., 0] == _DOOR) & (seen[..., 2] == _LOCKED)
-    locked_front = (front_after[..., 0] == _DOOR) & (front_after[..., 2] == _LOCKED)
+    # a locked door of the carried key's colour (ObstructedMaze-2Dlhb has two)
+    key_colour = after[..., _AGENT[0], _AGENT[1], 1]
+    locked = (
+        (seen[..., 0] == _DOOR)
+        & (seen[..., 2] == _LOCKED)
+        & (seen[..., 1] == key_colour[..., None])
+    )
+    locked_front = (
+        (front_after[..., 0] == _DOOR)
+        & (front_after[..., 2] == _LOCKED)
+        & (front_after[..., 1] == key_colour)
+    )
     per_step = {
         "carried_ball": carried == _BALL,
         "carried_key": carried == _KEY,
