@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import gymnasium as gym
 import pandas as pd
 import pytest
@@ -19,6 +21,7 @@ from results.milestones import (
     main,
     max_steps,
     policy_episodes,
+    toggle_probability_at_door,
 )
 from torchrl_surprise.envs.oracle import solve_minigrid
 
@@ -113,7 +116,12 @@ def test_a_key_counts_only_at_a_locked_door_of_its_colour():
 
 
 def _joined(*parts: Episodes) -> Episodes:
-    return Episodes(*(torch.cat(fields, 1) for fields in zip(*parts, strict=True)))
+    return Episodes(
+        *(
+            None if fields[0] is None else torch.cat(fields, 1)
+            for fields in zip(*parts, strict=True)
+        )
+    )
 
 
 def test_each_episode_is_scored_on_its_own_steps_and_an_unfinished_one_left_out():
@@ -137,6 +145,28 @@ def test_each_episode_is_scored_on_its_own_steps_and_an_unfinished_one_left_out(
     assert len(episode_milestones(_joined(solved, idle), per_env=1)) == 1
     with pytest.raises(ValueError, match="env 0 ended 2 episodes.*at least 3"):
         episode_milestones(_joined(solved, idle, cut), per_env=3)
+
+
+def test_the_toggle_probability_is_read_where_the_key_faces_its_door_only():
+    # DoorKey-5x5, seed 1: the oracle takes the key, turns to its door (step 1),
+    # toggles it (step 2, the one step that starts facing the locked door with
+    # the key), then walks to the goal; an idle episode follows
+    solved = _played("MiniGrid-DoorKey-5x5-v0", seed=1)
+    idle = _played("MiniGrid-DoorKey-5x5-v0", seed=1, actions=[0, 0, 0])
+    idle.done[0, -1] = True
+    logits = torch.randn(
+        1, solved.image.shape[1] + 3, 7, generator=torch.manual_seed(0)
+    )
+    steps = _joined(solved, idle)._replace(logits=logits)
+    expected = logits[0, 2].softmax(-1)[5]  # MiniGrid's toggle
+    assert toggle_probability_at_door(steps) == pytest.approx(float(expected))
+    assert toggle_probability_at_door(steps, per_env=1) == pytest.approx(
+        float(expected)
+    )
+    # never at the door: NaN; no logits: refused
+    assert math.isnan(toggle_probability_at_door(idle._replace(logits=logits[:, -3:])))
+    with pytest.raises(ValueError, match="expected the policy's logits"):
+        toggle_probability_at_door(solved)
 
 
 def test_a_view_of_the_wrong_shape_is_refused_naming_the_expected_one():
@@ -173,6 +203,8 @@ def test_a_runs_policy_is_played_for_each_envs_first_episodes(tmp_path, backend)
     assert (row["setting"], row["seed"], row["frames"]) == ("demo", 4, 512)
     assert row["episodes"] == 3 * 2
     assert all(0.0 <= row[name] <= 1.0 for name in MILESTONES)
+    door = row["toggle_prob_at_door"]  # an untrained policy may never face it
+    assert math.isnan(door) or 0.0 < door < 1.0
     # seeded: the same rollout again
     assert main([*argv, str(tmp_path / "again.csv")]) == 0
     pd.testing.assert_frame_equal(table, pd.read_csv(tmp_path / "again.csv"))

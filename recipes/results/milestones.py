@@ -31,7 +31,12 @@ writes one row per run:
   on KeyCorridor, MultiRoom and ObstructedMaze-2Dlhb some doors are unlocked);
 - ``unlocked_door``: the share in which the agent unlocked a door (the door in
   front of it locked before a step, open after it);
-- ``success``: the share that ended with a positive reward (the task solved).
+- ``success``: the share that ended with a positive reward (the task solved);
+
+and, beside them, ``toggle_prob_at_door``: the policy's probability of the toggle
+action at the steps where the agent holds a key facing a locked door of its
+colour (where a toggle unlocks it), averaged over those steps (empty when there
+are none): how readily a policy that brings the key to its door tries it there.
 
 A run trained with ``env.stochasticity`` is refused: its noise is not replayed.
 
@@ -50,6 +55,7 @@ from typing import NamedTuple
 
 import pandas as pd
 import torch
+from minigrid.core.actions import Actions
 from minigrid.core.constants import OBJECT_TO_IDX, STATE_TO_IDX
 
 # recipes/ holds what the recipes share (common), which rebuilds a run's policy
@@ -64,6 +70,7 @@ __all__ = [
     "max_steps",
     "policy_episodes",
     "run_milestones",
+    "toggle_probability_at_door",
 ]
 
 _DOOR, _KEY, _BALL, _BOX = (OBJECT_TO_IDX[k] for k in ("door", "key", "ball", "box"))
@@ -84,19 +91,56 @@ MILESTONES = (
 )
 
 #: Columns of the output, per run.
-COLUMNS = ("run", "setting", "seed", "frames", "episodes", *MILESTONES)
+COLUMNS = (
+    "run",
+    "setting",
+    "seed",
+    "frames",
+    "episodes",
+    *MILESTONES,
+    "toggle_prob_at_door",
+)
 
 
 class Episodes(NamedTuple):
     """Steps of ``envs`` envs, each ``[envs, steps, ...]``: the views before
     (``image``) and after (``next_image``) each step, its ``reward``, ``done`` and
-    ``action``."""
+    ``action``, and the policy's ``logits`` at each step (when played by one)."""
 
     image: torch.Tensor
     next_image: torch.Tensor
     reward: torch.Tensor
     done: torch.Tensor
     action: torch.Tensor
+    logits: torch.Tensor | None = None
+
+
+def _key_at_its_door(view: torch.Tensor) -> torch.Tensor:
+    # [envs, steps]: the agent holds a key and the cell in front of it is a locked
+    # door of the key's colour (ObstructedMaze-2Dlhb has two), where a toggle
+    # unlocks it
+    held, front = view[..., _AGENT[0], _AGENT[1], :], view[..., _FRONT[0], _FRONT[1], :]
+    return (
+        (held[..., 0] == _KEY)
+        & (front[..., 0] == _DOOR)
+        & (front[..., 2] == _LOCKED)
+        & (front[..., 1] == held[..., 1])
+    )
+
+
+def _scored_steps(done: torch.Tensor, per_env: int | None) -> torch.Tensor:
+    # [envs, steps]: the steps of each env's first ``per_env`` ended episodes (all
+    # ended ones without it); an env that ended fewer is refused
+    ended = done.long().cumsum(-1) - done.long()  # episodes ended before the step
+    within = (ended < per_env) if per_env is not None else torch.ones_like(done)
+    ends = done.sum(-1)
+    for env, count in enumerate(ends.tolist()):
+        if per_env is not None and count < per_env:
+            raise ValueError(
+                f"env {env} ended {count} episodes in {done.shape[-1]} steps, "
+                f"expected at least {per_env}"
+            )
+    return within & (ended < ends[:, None])
 
 
 def episode_milestones(episodes: Episodes, per_env: int | None = None) -> pd.DataFrame:
@@ -147,17 +191,12 @@ def episode_milestones(episodes: Episodes, per_env: int | None = None) -> pd.Dat
         & (seen[..., 2] == _LOCKED)
         & (seen[..., 1] == key_colour[..., None])
     )
-    locked_front = (
-        (front_after[..., 0] == _DOOR)
-        & (front_after[..., 2] == _LOCKED)
-        & (front_after[..., 1] == key_colour)
-    )
     per_step = {
         "carried_ball": carried == _BALL,
         "carried_key": carried == _KEY,
         "carried_box": carried == _BOX,
         "saw_locked_door_with_key": (carried == _KEY) & locked.any(-1),
-        "faced_locked_door_with_key": (carried == _KEY) & locked_front,
+        "faced_locked_door_with_key": (carried == _KEY) & _key_at_its_door(after),
         "opened_door": ((seen[..., 0] == _DOOR) & (seen[..., 2] == _OPEN)).any(-1),
         "unlocked_door": (front[..., 0] == _DOOR)
         & (front[..., 2] == _LOCKED)
@@ -182,6 +221,39 @@ def episode_milestones(episodes: Episodes, per_env: int | None = None) -> pd.Dat
             )
             start = end + 1
     return pd.DataFrame(rows, columns=list(MILESTONES), dtype=bool)
+
+
+def toggle_probability_at_door(episodes: Episodes, per_env: int | None = None) -> float:
+    """The policy's mean probability of the toggle action over the steps at which
+    the agent holds a key facing a locked door of its colour (NaN when there are
+    none), in each env's first ``per_env`` ended episodes (all ended ones without
+    it).
+
+    Raises:
+        ValueError: the episodes carry no ``logits``, or an env ended fewer than
+            ``per_env`` episodes.
+
+    Examples:
+        >>> image = torch.zeros(1, 2, 7, 7, 3, dtype=torch.uint8)
+        >>> image[0, :, 3, 6] = torch.tensor([5, 4, 0])  # holds a yellow key
+        >>> image[0, 1, 3, 5] = torch.tensor([4, 4, 2])  # then faces its locked door
+        >>> logits = torch.zeros(1, 2, 7)
+        >>> logits[0, 1, 5] = 1.0  # toggle: e / (e + 6)
+        >>> done = torch.tensor([[False, True]])
+        >>> steps = Episodes(image, image, torch.zeros(1, 2), done, torch.zeros(1, 2),
+        ...                  logits)
+        >>> round(toggle_probability_at_door(steps), 4)
+        0.3118
+    """
+    if episodes.logits is None:
+        raise ValueError("expected the policy's logits at each step, got none")
+    envs, steps = episodes.image.shape[:2]
+    done = episodes.done.reshape(envs, steps).bool()
+    at_door = _key_at_its_door(episodes.image) & _scored_steps(done, per_env)
+    if not at_door.any():
+        return float("nan")
+    toggle = episodes.logits.float().softmax(-1)[..., int(Actions.toggle)]
+    return float(toggle[at_door].mean())
 
 
 def load_policy(run_dir: str | Path):
@@ -256,6 +328,7 @@ def policy_episodes(policy, config: dict, envs: int, steps: int, seed: int) -> E
         rollout["next", "reward"].reshape(envs, steps),
         rollout["next", "done"].reshape(envs, steps),
         rollout["action"].reshape(envs, steps),
+        rollout["logits"].reshape(envs, steps, -1),
     )
 
 
@@ -278,6 +351,7 @@ def run_milestones(
     }
     for name in MILESTONES:
         row[name] = round(float(table[name].mean()), 4)
+    row["toggle_prob_at_door"] = round(toggle_probability_at_door(episodes, per_env), 4)
     return row
 
 
