@@ -9,6 +9,7 @@ import pandas as pd
 import pytest
 import torch
 from _recipe_run import run_results_script
+from tensordict import TensorDict
 from torchrl.data import Categorical
 
 from common.minigrid import make_actor_critic
@@ -150,21 +151,29 @@ def test_each_episode_is_scored_on_its_own_steps_and_an_unfinished_one_left_out(
 def test_the_toggle_probability_is_read_where_the_key_faces_its_door_only():
     # DoorKey-5x5, seed 1: the oracle takes the key, turns to its door (step 1),
     # toggles it (step 2, the one step that starts facing the locked door with
-    # the key), then walks to the goal; an idle episode follows
+    # the key), then walks to the goal. Three such episodes, the last cut off
+    # before it ends, then an idle one.
     solved = _played("MiniGrid-DoorKey-5x5-v0", seed=1)
+    cut = _played("MiniGrid-DoorKey-5x5-v0", seed=1)
+    cut.done[0, -1] = False
     idle = _played("MiniGrid-DoorKey-5x5-v0", seed=1, actions=[0, 0, 0])
     idle.done[0, -1] = True
-    logits = torch.randn(
-        1, solved.image.shape[1] + 3, 7, generator=torch.manual_seed(0)
-    )
-    steps = _joined(solved, idle)._replace(logits=logits)
-    expected = logits[0, 2].softmax(-1)[5]  # MiniGrid's toggle
-    assert toggle_probability_at_door(steps) == pytest.approx(float(expected))
+    n = solved.image.shape[1]
+    logits = torch.randn(1, 3 * n, 7, generator=torch.manual_seed(0))
+    steps = _joined(solved, solved, cut)._replace(logits=logits)
+    toggle = logits[0].softmax(-1)[:, 5]  # MiniGrid's toggle
+    # each env's first episode: its own door step only; all ended ones: both,
+    # never the unfinished one's
     assert toggle_probability_at_door(steps, per_env=1) == pytest.approx(
-        float(expected)
+        float(toggle[2])
     )
+    both = float((toggle[2] + toggle[n + 2]) / 2)
+    assert toggle_probability_at_door(steps) == pytest.approx(both)
+    assert toggle_probability_at_door(steps, per_env=2) == pytest.approx(both)
+    with pytest.raises(ValueError, match="env 0 ended 2 episodes.*at least 3"):
+        toggle_probability_at_door(steps, per_env=3)
     # never at the door: NaN; no logits: refused
-    assert math.isnan(toggle_probability_at_door(idle._replace(logits=logits[:, -3:])))
+    assert math.isnan(toggle_probability_at_door(idle._replace(logits=logits[:, :3])))
     with pytest.raises(ValueError, match="expected the policy's logits"):
         toggle_probability_at_door(solved)
 
@@ -217,6 +226,10 @@ def test_the_policy_acts_by_sampling_as_in_training(tmp_path):
     policy, config, _ = load_policy(tmp_path / "run")
     steps = policy_episodes(policy, config, envs=2, steps=200, seed=0)
     assert len(steps.action.unique()) == 7
+    # the logits kept are the ones each step's action was drawn from
+    with torch.no_grad():
+        again = policy(TensorDict({"image": steps.image}, batch_size=[2, 200]))
+    torch.testing.assert_close(steps.logits, again["logits"])
     # main plays episodes x max_steps steps: an episode lasts at most max_steps
     assert max_steps("MiniGrid-DoorKey-5x5-v0") == 250
 

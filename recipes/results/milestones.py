@@ -37,6 +37,9 @@ and, beside them, ``toggle_prob_at_door``: the policy's probability of the toggl
 action at the steps where the agent holds a key facing a locked door of its
 colour (where a toggle unlocks it), averaged over those steps (empty when there
 are none): how readily a policy that brings the key to its door tries it there.
+It reads the view before each step (where the action is chosen), the milestones
+the view after it, so an episode that first faces the door at its last step
+counts as ``faced_locked_door_with_key`` and adds no step here.
 
 A run trained with ``env.stochasticity`` is refused: its noise is not replayed.
 
