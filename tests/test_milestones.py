@@ -217,6 +217,13 @@ def test_a_runs_policy_is_played_for_each_envs_first_episodes(tmp_path, backend)
     # seeded: the same rollout again
     assert main([*argv, str(tmp_path / "again.csv")]) == 0
     pd.testing.assert_frame_equal(table, pd.read_csv(tmp_path / "again.csv"))
+    # a checkpoint file (a kept point of training) reads as its run
+    ckpt = tmp_path / "run" / "checkpoint.torchrl"
+    argv[0] = str(ckpt)
+    assert main([*argv, str(tmp_path / "file.csv")]) == 0
+    from_file = pd.read_csv(tmp_path / "file.csv")
+    assert from_file.pop("run").tolist() == [str(ckpt)]
+    pd.testing.assert_frame_equal(from_file, table.drop(columns="run"))
 
 
 def test_the_policy_acts_by_sampling_as_in_training(tmp_path):

@@ -42,11 +42,16 @@ the view after it, so an episode that first faces the door at its last step
 counts as ``faced_locked_door_with_key`` and adds no step here.
 
 A run trained with ``env.stochasticity`` is refused: its noise is not replayed.
+A run is a run directory (its latest checkpoint) or one checkpoint file: a run
+made with ``checkpoint.keep=true`` keeps each periodic one as
+``<run>/checkpoints/checkpoint-<frames>.torchrl``, so passing them all gives the
+milestones at points of training (the ``frames`` column tells them apart).
 
 Usage::
 
     python recipes/results/milestones.py runs/ppo_minigrid/suite_obstructedmaze_1dlhb/+setting=*,seed=* \\
         --out docs/results/milestones/obstructedmaze_1dlhb.csv
+    python recipes/results/milestones.py "runs/ppo_minigrid/suite_obstructedmaze_2dlhb/+setting=vae_noveld,seed=0"/checkpoints/*.torchrl
 """
 
 from __future__ import annotations

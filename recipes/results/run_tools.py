@@ -29,7 +29,9 @@ def checkpoint_parser(script: str, doc: str, *, envs: int) -> argparse.ArgumentP
         prog=f"python recipes/results/{script}",
         description=doc.split("\n\n", 1)[0],
     )
-    parser.add_argument("runs", nargs="+", type=Path, help="run directories")
+    parser.add_argument(
+        "runs", nargs="+", type=Path, help="run directories or checkpoint files"
+    )
     parser.add_argument("--envs", type=int, default=envs, help="envs of the rollout")
     parser.add_argument("--seed", type=int, default=0, help="seed of the rollout")
     parser.add_argument("--out", type=Path, help="CSV to write")
