@@ -136,19 +136,22 @@ def _key_at_its_door(view: torch.Tensor) -> torch.Tensor:
     )
 
 
-def _scored_steps(done: torch.Tensor, per_env: int | None) -> torch.Tensor:
-    # [envs, steps]: the steps of each env's first ``per_env`` ended episodes (all
-    # ended ones without it); an env that ended fewer is refused
-    ended = done.long().cumsum(-1) - done.long()  # episodes ended before the step
-    within = (ended < per_env) if per_env is not None else torch.ones_like(done)
-    ends = done.sum(-1)
-    for env, count in enumerate(ends.tolist()):
-        if per_env is not None and count < per_env:
-            raise ValueError(
-                f"env {env} ended {count} episodes in {done.shape[-1]} steps, "
-                f"expected at least {per_env}"
-            )
-    return within & (ended < ends[:, None])
+def _scored_episodes(done: torch.Tensor, per_env: int | None) -> list[tuple]:
+    # (env, first step, last step) of each env's first ``per_env`` ended episodes
+    # (all ended ones without it); an env that ended fewer is refused
+    episodes = []
+    for env in range(done.shape[0]):
+        ends = done[env].nonzero().flatten().tolist()
+        if per_env is not None:
+            if len(ends) < per_env:
+                raise ValueError(
+                    f"env {env} ended {len(ends)} episodes in {done.shape[-1]} "
+                    f"steps, expected at least {per_env}"
+                )
+            ends = ends[:per_env]
+        starts = [0, *(end + 1 for end in ends[:-1])]
+        episodes += [(env, start, end) for start, end in zip(starts, ends)]
+    return episodes
 
 
 def episode_milestones(episodes: Episodes, per_env: int | None = None) -> pd.DataFrame:
@@ -212,22 +215,10 @@ def episode_milestones(episodes: Episodes, per_env: int | None = None) -> pd.Dat
         & (front_after[..., 2] == _OPEN),
         "success": success,
     }
-    rows = []
-    for env in range(envs):
-        ends = done[env].nonzero().flatten().tolist()
-        if per_env is not None:
-            if len(ends) < per_env:
-                raise ValueError(
-                    f"env {env} ended {len(ends)} episodes in {steps} steps, "
-                    f"expected at least {per_env}"
-                )
-            ends = ends[:per_env]
-        start = 0
-        for end in ends:
-            rows.append(
-                {k: bool(v[env, start : end + 1].any()) for k, v in per_step.items()}
-            )
-            start = end + 1
+    rows = [
+        {k: bool(v[env, start : end + 1].any()) for k, v in per_step.items()}
+        for env, start, end in _scored_episodes(done, per_env)
+    ]
     return pd.DataFrame(rows, columns=list(MILESTONES), dtype=bool)
 
 
@@ -257,7 +248,10 @@ def toggle_probability_at_door(episodes: Episodes, per_env: int | None = None) -
         raise ValueError("expected the policy's logits at each step, got none")
     envs, steps = episodes.image.shape[:2]
     done = episodes.done.reshape(envs, steps).bool()
-    at_door = _key_at_its_door(episodes.image) & _scored_steps(done, per_env)
+    scored = torch.zeros_like(done)
+    for env, start, end in _scored_episodes(done, per_env):
+        scored[env, start : end + 1] = True
+    at_door = _key_at_its_door(episodes.image) & scored
     if not at_door.any():
         return float("nan")
     toggle = episodes.logits.float().softmax(-1)[..., int(Actions.toggle)]
