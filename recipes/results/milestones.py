@@ -123,17 +123,21 @@ class Episodes(NamedTuple):
     logits: torch.Tensor | None = None
 
 
+def _locked_door_of(cells: torch.Tensor, colour: torch.Tensor) -> torch.Tensor:
+    # cells ([..., 3], encoded) that are a locked door of ``colour`` (a key opens
+    # the door of its colour; ObstructedMaze-2Dlhb has two)
+    return (
+        (cells[..., 0] == _DOOR)
+        & (cells[..., 2] == _LOCKED)
+        & (cells[..., 1] == colour)
+    )
+
+
 def _key_at_its_door(view: torch.Tensor) -> torch.Tensor:
     # [envs, steps]: the agent holds a key and the cell in front of it is a locked
-    # door of the key's colour (ObstructedMaze-2Dlhb has two), where a toggle
-    # unlocks it
+    # door of the key's colour, where a toggle unlocks it
     held, front = view[..., _AGENT[0], _AGENT[1], :], view[..., _FRONT[0], _FRONT[1], :]
-    return (
-        (held[..., 0] == _KEY)
-        & (front[..., 0] == _DOOR)
-        & (front[..., 2] == _LOCKED)
-        & (front[..., 1] == held[..., 1])
-    )
+    return (held[..., 0] == _KEY) & _locked_door_of(front, held[..., 1])
 
 
 def _scored_episodes(done: torch.Tensor, per_env: int | None) -> list[tuple]:
@@ -195,13 +199,8 @@ def episode_milestones(episodes: Episodes, per_env: int | None = None) -> pd.Dat
         image[..., _FRONT[0], _FRONT[1], :],
         after[..., _FRONT[0], _FRONT[1], :],
     )
-    # a locked door of the carried key's colour (ObstructedMaze-2Dlhb has two)
     key_colour = after[..., _AGENT[0], _AGENT[1], 1]
-    locked = (
-        (seen[..., 0] == _DOOR)
-        & (seen[..., 2] == _LOCKED)
-        & (seen[..., 1] == key_colour[..., None])
-    )
+    locked = _locked_door_of(seen, key_colour[..., None])  # of the key's colour
     per_step = {
         "carried_ball": carried == _BALL,
         "carried_key": carried == _KEY,
