@@ -839,6 +839,12 @@ def test_envpool_runs_are_their_own_task_normalised_by_envpools_oracle(tmp_path)
     # one env id in two oracle tables is ambiguous: refused, naming the table
     with pytest.raises(ValueError, match="another table"):
         read_oracle(minigrid_oracle, minigrid_oracle)
+    # and twice in one table (several action noises of one task): refused too
+    pd.DataFrame({"env": [MINIGRID] * 2, "mean_return": [0.8, 0.7]}).to_csv(
+        minigrid_oracle, index=False
+    )
+    with pytest.raises(ValueError, match="is twice .* one --oracle file per noise"):
+        read_oracle(minigrid_oracle)
 
 
 def test_label_keys_tell_apart_runs_of_one_setting(tmp_path, capsys):

@@ -20,8 +20,10 @@ from minigrid.minigrid_env import MiniGridEnv
 
 from torchrl_surprise.envs import MULTIROOM_N3_S4, MULTIROOM_N4_S4
 from torchrl_surprise.envs.oracle import (
+    NOISY_ORACLE_CSV_COLUMNS,
     ORACLE_CSV_COLUMNS,
     main,
+    optimal_returns_under_action_noise,
     oracle_returns,
     oracle_table,
     return_to_steps,
@@ -741,3 +743,115 @@ def test_envpool_layouts_rebuilt_in_minigrid_are_solved(env_id):
         for action in solution.actions:
             _, reward, terminated, _, _ = twin.step(action)
         assert terminated and reward == solution.episode_return
+
+
+# What is achievable under action noise ---------------------------------------------
+def test_action_noise_optimum_hand_computed():
+    # The goal one step ahead, 2 steps allowed. The agent goes forward; the env
+    # executes it with probability q = 1 - p + p / 7. Otherwise a random turn
+    # (2 of 7) leaves no way to the goal in the step left, and a no-op (pickup,
+    # drop, toggle, done: 4 of 7) leaves it facing the goal for its last step.
+    p = 0.2
+    env = _make(["####", "#>G#", "####"], max_steps=2)
+    q = 1 - p + p / 7
+    first, last = _minigrid_return(1, 2), _minigrid_return(2, 2)
+    expected = q * first + p * 4 / 7 * q * last
+    (noisy,) = optimal_returns_under_action_noise(env, [p])
+    assert noisy == pytest.approx(expected, abs=1e-12)
+    # Every action random (p = 1): the mean over actions, no choice left.
+    (random,) = optimal_returns_under_action_noise(env, [1.0])
+    assert random == pytest.approx(first / 7 + 4 / 7 / 7 * last, abs=1e-12)
+
+
+@pytest.mark.parametrize(
+    "env_id,seeds",
+    [(MULTIROOM_N3_S4, range(2)), ("MiniGrid-DoorKey-5x5-v0", range(2))],
+)
+def test_action_noise_optimum_without_noise_is_the_oracle(env_id, seeds):
+    env = gym.make(env_id)
+    for seed in seeds:
+        env.reset(seed=seed)
+        free, mild, most = optimal_returns_under_action_noise(env, [0.0, 0.05, 0.2])
+        assert free == pytest.approx(solve_minigrid(env).episode_return, abs=1e-12)
+        assert free > mild > most > 0  # more noise, less achievable
+
+
+@pytest.mark.parametrize(
+    "rows,make",
+    [
+        (["#######", "#.....#", "#>.~.G#", "#.....#", "#######"], _make),  # lava
+        (["#######", "#>YL.G#", "#######"], _make),  # a box holding the key
+        (["######", "#>.T.#", "######"], _make_pickup),  # a pickup task
+    ],
+)
+def test_action_noise_optimum_without_noise_on_hand_layouts(rows, make):
+    env = make(rows)
+    (free,) = optimal_returns_under_action_noise(env, [0.0])
+    assert free == pytest.approx(solve_minigrid(env).episode_return, abs=1e-12)
+
+
+def test_action_noise_optimum_matches_noisy_episodes_in_the_real_env():
+    # One corridor through a closed door: replanning the oracle's shortest path
+    # after every step is the best policy here, so its return over noisy
+    # episodes of the real env (each executed action replaced by a random one
+    # with probability p, as StochasticityTransform does) estimates the optimum.
+    rows, p, episodes = ["#######", "#>.D.G#", "#######"], 0.3, 400
+    (optimum,) = optimal_returns_under_action_noise(_make(rows, max_steps=20), [p])
+    rng = np.random.default_rng(0)
+    returns = []
+    for _ in range(episodes):
+        env = _make(rows, max_steps=20)
+        reward, done = 0.0, False
+        while not done:
+            action = solve_minigrid(env).actions[0]
+            if rng.random() < p:
+                action = int(rng.integers(7))
+            _, reward, terminated, truncated, _ = env.step(action)
+            done = terminated or truncated
+        returns.append(reward)
+    error = np.std(returns) / np.sqrt(episodes)
+    assert abs(np.mean(returns) - optimum) < 4 * error
+
+
+def test_action_noise_optimum_leaves_the_env_and_refuses_bad_input():
+    env = _make(["#######", "#>KL.G#", "#######"])
+    before = (env.agent_pos, env.agent_dir, env.step_count, env.grid.encode())
+    optimal_returns_under_action_noise(env, [0.1])
+    assert env.carrying is None
+    assert (env.agent_pos, env.agent_dir, env.step_count) == before[:3]
+    np.testing.assert_array_equal(env.grid.encode(), before[3])
+    with pytest.raises(ValueError, match=r"in \[0, 1\]"):
+        optimal_returns_under_action_noise(env, [0.1, 1.5])
+    with pytest.raises(ValueError, match="max_states=3"):
+        optimal_returns_under_action_noise(env, [0.1], max_states=3)
+    unlock = gym.make("MiniGrid-Unlock-v0")
+    unlock.reset(seed=0)
+    with pytest.raises(ValueError, match="overrides"):
+        optimal_returns_under_action_noise(unlock, [0.1])
+    with pytest.raises(ValueError, match="reset the env first"):
+        optimal_returns_under_action_noise(gym.make("MiniGrid-DoorKey-5x5-v0"), [0.1])
+
+
+def test_noisy_oracle_table_and_cli(tmp_path, capsys):
+    out = tmp_path / "noisy.csv"
+    argv = ["--envs", "MiniGrid-DoorKey-5x5-v0", "--seeds", "2", "--out", str(out)]
+    rows = main([*argv, "--action-noise", "0.1", "0.2"])
+    assert "fraction_of_noise_free" in capsys.readouterr().out
+    with out.open() as file:
+        reader = csv.DictReader(file)
+        assert tuple(reader.fieldnames) == NOISY_ORACLE_CSV_COLUMNS
+        written = list(reader)
+    assert [float(row["action_noise"]) for row in written] == [0.1, 0.2]
+    env = gym.make("MiniGrid-DoorKey-5x5-v0")
+    per_seed = []
+    for seed in range(2):
+        env.reset(seed=seed)
+        per_seed.append(optimal_returns_under_action_noise(env, [0.0, 0.2]))
+    free, noisy = np.mean(per_seed, axis=0)
+    assert rows[1]["mean_return"] == pytest.approx(noisy, abs=1e-12)
+    assert rows[1]["noise_free_return"] == pytest.approx(free, abs=1e-12)
+    assert float(written[1]["mean_return"]) == pytest.approx(noisy, abs=1e-4)
+    assert rows[1]["fraction_of_noise_free"] == pytest.approx(noisy / free)
+    # Each row's noise-free return is the oracle's, averaged over the same seeds.
+    oracle = oracle_returns("MiniGrid-DoorKey-5x5-v0", range(2))
+    assert free == pytest.approx(np.mean([s.episode_return for s in oracle]))

@@ -609,15 +609,23 @@ def read_oracle(*paths: str | os.PathLike) -> dict[str, float]:
     ``<env id>@envpool``, the suite's); an env id in two of them is refused.
     """
     oracle: dict[str, float] = {}
-    for path in paths:
+    source: dict[str, int] = {}  # the position in ``paths`` of each env's table
+    for position, path in enumerate(paths):
         table = pd.read_csv(path)
         missing = {"env", "mean_return"} - set(table.columns)
         if missing:
             raise ValueError(f"{path} has no column {', '.join(sorted(missing))}")
         for env, value in zip(table["env"], table["mean_return"]):
             if str(env) in oracle:
-                raise ValueError(f"{path}: the oracle of {env} is in another table too")
+                where = (
+                    "twice" if source[str(env)] == position else "in another table too"
+                )
+                raise ValueError(
+                    f"{path}: the oracle of {env} is {where} (one row per env id: a "
+                    "table of several action noises is one --oracle file per noise)"
+                )
             oracle[str(env)] = float(value)
+            source[str(env)] = position
     return oracle
 
 

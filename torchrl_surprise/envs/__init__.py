@@ -7,7 +7,8 @@ Each env family is an extra, imported on first use of its names, so that
 * MiniGrid (``pip install "torchrl_surprise[minigrid]"``): :func:`make_minigrid_env`
   (the paper's ``MiniGrid-MultiRoom-N3-S4-v0`` and ``-N4-S4-v0`` included; they are
   registered with gymnasium when :mod:`torchrl_surprise.envs.minigrid` is imported),
-  the oracle :func:`solve_minigrid`;
+  the oracle :func:`solve_minigrid` and what is achievable under action noise,
+  :func:`optimal_returns_under_action_noise`;
 * MuJoCo (``pip install "torchrl_surprise[mujoco]"``): :func:`make_mujoco_env`.
 
 Examples:
@@ -48,6 +49,8 @@ _LAZY = {
     "oracle_returns": ("oracle", "minigrid"),
     "oracle_table": ("oracle", "minigrid"),
     "solve_minigrid": ("oracle", "minigrid"),
+    "optimal_returns_under_action_noise": ("oracle", "minigrid"),
+    "noisy_oracle_table": ("oracle", "minigrid"),
     "PAPER_MUJOCO_IDS": ("mujoco", "mujoco"),
     "make_mujoco_env": ("mujoco", "mujoco"),
 }
@@ -92,6 +95,8 @@ __all__ = [
     "make_minigrid_env",
     "minigrid_env_from_envpool_state",
     "make_mujoco_env",
+    "noisy_oracle_table",
+    "optimal_returns_under_action_noise",
     "oracle_returns",
     "oracle_table",
     "register_minigrid_envs",

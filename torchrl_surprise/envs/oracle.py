@@ -21,6 +21,15 @@ and the command line writes that table as a CSV::
         --envs MiniGrid-MultiRoom-N3-S4-v0 MiniGrid-DoorKey-5x5-v0 --seeds 1000 \\
         --out docs/results/oracle/oracle_returns.csv
 
+Under action noise (an executed action replaced by a random one with probability
+``p``, as :class:`~torchrl_surprise.transforms.StochasticityTransform` does) no
+policy keeps the oracle's return; :func:`optimal_returns_under_action_noise` gives
+the best expected return there, exactly, and ``--action-noise`` tabulates it
+(:func:`noisy_oracle_table`)::
+
+    python -m torchrl_surprise.envs.oracle --envs MiniGrid-MultiRoom-N3-S4-v0 \\
+        --seeds 200 --action-noise 0.05 0.1 0.2 --out noisy_oracle.csv
+
 Layouts may hold walls, floors, doors (open, closed or locked), keys, balls, boxes
 (toggled, a box is replaced by what it holds), goals and lava. Anything else (a
 subclass with its own semantics) and envs that override ``step`` or ``_reward`` in
@@ -33,6 +42,7 @@ millisecond to about a second (``benchmarks/suite_oracle.py``).
 from __future__ import annotations
 
 import argparse
+import copy
 import csv
 import heapq
 import itertools
@@ -44,6 +54,7 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 from minigrid.core.actions import Actions
 from minigrid.core.constants import DIR_TO_VEC
 from minigrid.core.world_object import Ball, Box, Door, Floor, Goal, Key, Lava, Wall
@@ -54,11 +65,14 @@ from minigrid.minigrid_env import MiniGridEnv
 from torchrl_surprise.envs.minigrid import register_minigrid_envs
 
 __all__ = [
+    "NOISY_ORACLE_CSV_COLUMNS",
     "ORACLE_CSV_COLUMNS",
     "OracleSolution",
     "format_oracle_table",
     "oracle_returns",
     "oracle_row",
+    "noisy_oracle_table",
+    "optimal_returns_under_action_noise",
     "oracle_table",
     "return_to_steps",
     "solve_minigrid",
@@ -86,6 +100,19 @@ seeds; ``max_episode_steps`` is MiniGrid's ``max_steps`` for the id;
 ``return_at_0.8_steps`` is the episode length whose return is 0.8.
 """
 
+NOISY_ORACLE_CSV_COLUMNS: tuple[str, ...] = (
+    "env",
+    "action_noise",
+    "seeds",
+    "mean_return",
+    "std_return",
+    "noise_free_return",
+    "fraction_of_noise_free",
+)
+"""Columns of :func:`noisy_oracle_table` rows and of the CSV the command line
+writes with ``--action-noise``: ``env`` and ``mean_return`` are what
+``recipes/results/aggregate.py --oracle`` reads (one ``p`` per file there)."""
+
 # Cell kinds of the static layout. Keys, balls and boxes are not cell kinds: they move
 # (and a toggled box vanishes), so they live in the dynamic state; the cell under them
 # is EMPTY (MiniGrid stores one object per cell, so a key never sits on a door).
@@ -106,6 +133,8 @@ _MOVABLE = {Key: _KEY, Ball: _BALL, Box: _BOX}
 # the agent carrying ``env.obj`` ends the episode with ``_reward()``.
 _PICKUP_TASK_STEPS = (KeyCorridorEnv.step, ObstructedMazeEnv.step)
 _UNREACHABLE = 1 << 30
+# Ends of an episode in optimal_returns_under_action_noise's transition table.
+_NOISE_SUCCESS, _NOISE_FAILURE = -1, -2
 
 
 @dataclass(frozen=True)
@@ -720,6 +749,189 @@ def oracle_returns(
         env.close()
 
 
+def _noise_state_key(env: MiniGridEnv) -> tuple:
+    """A hashable full state of ``env``: what its ``step`` reads and changes.
+
+    ``Grid.encode`` holds every cell's object, colour and door state; the boxes'
+    contents (not encoded) are added, so two states differ wherever a box holds
+    something else (boxes can be carried and swapped).
+    """
+    carrying = env.carrying
+    contents = tuple(
+        (i, None if obj.contains is None else obj.contains.encode())
+        for i, obj in enumerate(env.grid.grid)
+        if isinstance(obj, Box)
+    )
+    carried = None
+    if carrying is not None:
+        inside = getattr(carrying, "contains", None)
+        carried = (carrying.encode(), None if inside is None else inside.encode())
+    return (
+        tuple(int(x) for x in env.agent_pos),
+        int(env.agent_dir),
+        carried,
+        contents,
+        env.grid.encode().tobytes(),
+    )
+
+
+def optimal_returns_under_action_noise(
+    env: gym.Env, action_noise: Sequence[float], *, max_states: int = 100_000
+) -> list[float]:
+    """The best expected return from the env's state when actions are noisy.
+
+    With probability ``p`` the env executes, instead of the chosen action, one
+    drawn uniformly from all of its actions (possibly the same one): the action
+    noise of :class:`~torchrl_surprise.transforms.StochasticityTransform`. No
+    policy, however well it knows the maze, keeps the noise-free oracle's
+    return (:func:`solve_minigrid`) then; this is what the best policy that sees
+    the whole state gets on average, the return that is achievable under the
+    noise.
+
+    It is computed exactly, not sampled: the states reachable from the env's
+    current one are enumerated by stepping copies of it with every action
+    (MiniGrid's own ``step``), and the best expected return is the backward
+    recursion over the steps left before ``max_steps``, with MiniGrid's return
+    ``1 - 0.9 * step_count / max_steps`` at success, 0 at a timeout or in lava.
+    For each step count and state the best action maximises ``(1 - p)`` times
+    its own value plus ``p`` times the mean over all actions. At ``p = 0`` it is
+    the noise-free oracle's return. The env is not modified.
+
+    Args:
+        env: a MiniGrid env (possibly wrapped; its ``unwrapped`` env is read),
+            reset (or mid-episode: the steps taken count, as in MiniGrid).
+        action_noise: the probabilities ``p``, each in ``[0, 1]``; the states
+            are enumerated once for all of them.
+
+    Keyword Args:
+        max_states (int): refuse a layout with more reachable states than
+            this (the enumeration's memory and time grow with it).
+
+    Returns:
+        The best expected return for each ``p``, in order.
+
+    Raises:
+        ValueError: a ``p`` outside ``[0, 1]``, more than ``max_states``
+            reachable states, or an env whose task :func:`solve_minigrid`
+            refuses.
+
+    Examples:
+        >>> import gymnasium as gym
+        >>> env = gym.make("MiniGrid-DoorKey-5x5-v0")
+        >>> _ = env.reset(seed=0)
+        >>> free, noisy = optimal_returns_under_action_noise(env, [0.0, 0.2])
+        >>> free == solve_minigrid(env).episode_return
+        True
+        >>> round(noisy, 4)
+        0.9484
+    """
+    levels = [float(p) for p in action_noise]
+    bad = [p for p in levels if not 0.0 <= p <= 1.0]
+    if bad:
+        raise ValueError(f"action_noise: each p must be in [0, 1], got {bad}")
+    base = env.unwrapped
+    if not isinstance(base, MiniGridEnv):
+        raise TypeError(f"needs a MiniGridEnv, got {type(base)}")
+    if base.grid is None or base.agent_pos is None:
+        raise ValueError("optimal_returns_under_action_noise: reset the env first")
+    _check_semantics(base)
+    num_actions = int(base.action_space.n)
+    max_steps, start_count = int(base.max_steps), int(base.step_count)
+    # Enumerate the reachable states: successors[s][a] is a state's index, or
+    # _NOISE_SUCCESS / _NOISE_FAILURE when the action ends the episode.
+    root = copy.deepcopy(base)
+    index = {_noise_state_key(root): 0}
+    states, successors = [root], []
+    while len(successors) < len(states):
+        state = states[len(successors)]
+        row = []
+        for action in range(num_actions):
+            child = copy.deepcopy(state)
+            child.step_count = 0  # the recursion counts steps, not the copies
+            _, reward, terminated, _, _ = child.step(action)
+            if terminated:
+                row.append(_NOISE_SUCCESS if reward > 0 else _NOISE_FAILURE)
+                continue
+            key = _noise_state_key(child)
+            if key not in index:
+                if len(states) == max_states:
+                    raise ValueError(
+                        f"optimal_returns_under_action_noise: more than "
+                        f"max_states={max_states} states are reachable in this "
+                        f"{type(base).__name__} layout; pass a larger max_states"
+                    )
+                index[key] = len(states)
+                states.append(child)
+            row.append(index[key])
+        successors.append(row)
+    count = len(states)
+    table = np.array(successors, dtype=np.int64)
+    # Two extra entries of the value vector: success (its return at that step)
+    # and failure (0).
+    table[table == _NOISE_SUCCESS] = count
+    table[table == _NOISE_FAILURE] = count + 1
+    results = []
+    for p in levels:
+        value = np.zeros(count + 2)  # no step left: a timeout, return 0
+        for left in range(1, max_steps - start_count + 1):
+            step_count = max_steps - left + 1  # MiniGrid's count after this step
+            value[count] = 1 - 0.9 * (step_count / max_steps)
+            value[count + 1] = 0.0
+            q = value[table]
+            value[:count] = (1 - p) * q.max(axis=1) + p * q.mean(axis=1)
+        results.append(float(value[0]))
+    return results
+
+
+def noisy_oracle_table(
+    env_ids: Sequence[str], num_seeds: int, action_noise: Sequence[float]
+) -> list[dict[str, Any]]:
+    """What is achievable under action noise: one row per env id and ``p``.
+
+    For seeds ``0 .. num_seeds - 1`` each layout's best expected return under
+    each ``p`` (:func:`optimal_returns_under_action_noise`), summarised as
+    :data:`NOISY_ORACLE_CSV_COLUMNS`: ``mean_return`` over the layouts (the
+    normaliser for runs at that noise), ``noise_free_return`` the same
+    layouts' noise-free oracle return and ``fraction_of_noise_free`` their
+    ratio.
+
+    Examples:
+        >>> rows = noisy_oracle_table(["MiniGrid-DoorKey-5x5-v0"], 2, [0.2])
+        >>> row = rows[0]
+        >>> row["env"], row["action_noise"], row["seeds"]
+        ('MiniGrid-DoorKey-5x5-v0', 0.2, 2)
+        >>> 0.9 < row["fraction_of_noise_free"] < 1.0
+        True
+    """
+    register_minigrid_envs()
+    levels = [float(p) for p in action_noise]
+    rows = []
+    for env_id in env_ids:
+        env = gym.make(env_id)
+        try:
+            returns = []
+            for seed in range(num_seeds):
+                env.reset(seed=seed)
+                returns.append(optimal_returns_under_action_noise(env, [0.0, *levels]))
+        finally:
+            env.close()
+        free = statistics.fmean(r[0] for r in returns)
+        for i, p in enumerate(levels, start=1):
+            noisy = [r[i] for r in returns]
+            rows.append(
+                {
+                    "env": env_id,
+                    "action_noise": p,
+                    "seeds": num_seeds,
+                    "mean_return": statistics.fmean(noisy),
+                    "std_return": statistics.pstdev(noisy),
+                    "noise_free_return": free,
+                    "fraction_of_noise_free": statistics.fmean(noisy) / free,
+                }
+            )
+    return rows
+
+
 def return_to_steps(episode_return: float, max_steps: int) -> float:
     """The episode length at which MiniGrid pays ``episode_return``.
 
@@ -799,8 +1011,15 @@ def _format_value(value: Any) -> str:
     return f"{value:.4f}" if isinstance(value, float) else str(value)
 
 
-def write_oracle_csv(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
+def write_oracle_csv(
+    rows: Sequence[dict[str, Any]],
+    path: str | Path,
+    columns: Sequence[str] = ORACLE_CSV_COLUMNS,
+) -> Path:
     """Writes :func:`oracle_table` rows as a CSV (floats with 4 decimals).
+
+    ``columns``: :data:`NOISY_ORACLE_CSV_COLUMNS` for :func:`noisy_oracle_table`
+    rows.
 
     Returns:
         The path written (parent folders are created).
@@ -816,16 +1035,16 @@ def write_oracle_csv(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="") as file:
-        writer = csv.DictWriter(file, fieldnames=ORACLE_CSV_COLUMNS)
+        writer = csv.DictWriter(file, fieldnames=list(columns))
         writer.writeheader()
         for row in rows:
-            writer.writerow(
-                {key: _format_value(row[key]) for key in ORACLE_CSV_COLUMNS}
-            )
+            writer.writerow({key: _format_value(row[key]) for key in columns})
     return path
 
 
-def format_oracle_table(rows: Sequence[dict[str, Any]]) -> str:
+def format_oracle_table(
+    rows: Sequence[dict[str, Any]], columns: Sequence[str] = ORACLE_CSV_COLUMNS
+) -> str:
     """A fixed-width text table of :func:`oracle_table` rows, for a terminal.
 
     Examples:
@@ -833,8 +1052,8 @@ def format_oracle_table(rows: Sequence[dict[str, Any]]) -> str:
         >>> print(format_oracle_table(rows).splitlines()[0].split()[:3])
         ['env', 'seeds', 'mean_return']
     """
-    cells = [list(ORACLE_CSV_COLUMNS)]
-    cells += [[_format_value(row[key]) for key in ORACLE_CSV_COLUMNS] for row in rows]
+    cells = [list(columns)]
+    cells += [[_format_value(row[key]) for key in columns] for row in rows]
     widths = [max(len(line[i]) for line in cells) for i in range(len(cells[0]))]
     lines = [
         "  ".join(
@@ -857,11 +1076,25 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
         "--seeds", type=int, default=1000, help="seeds 0..N-1 per id (default 1000)"
     )
     parser.add_argument("--out", type=Path, default=None, help="CSV path to write")
+    parser.add_argument(
+        "--action-noise",
+        type=float,
+        nargs="+",
+        default=None,
+        metavar="P",
+        help="instead, the best expected return when an action is replaced by a "
+        "random one with probability P (one row per id and P; "
+        "optimal_returns_under_action_noise)",
+    )
     args = parser.parse_args(argv)
-    rows = oracle_table(args.envs, args.seeds)
-    print(format_oracle_table(rows))
+    if args.action_noise is None:
+        rows, columns = oracle_table(args.envs, args.seeds), ORACLE_CSV_COLUMNS
+    else:
+        rows = noisy_oracle_table(args.envs, args.seeds, args.action_noise)
+        columns = NOISY_ORACLE_CSV_COLUMNS
+    print(format_oracle_table(rows, columns))
     if args.out is not None:
-        print(f"wrote {write_oracle_csv(rows, args.out)}")
+        print(f"wrote {write_oracle_csv(rows, args.out, columns)}")
     return rows
 
 
