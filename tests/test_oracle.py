@@ -22,6 +22,7 @@ from torchrl_surprise.envs import MULTIROOM_N3_S4, MULTIROOM_N4_S4
 from torchrl_surprise.envs.oracle import (
     NOISY_ORACLE_CSV_COLUMNS,
     ORACLE_CSV_COLUMNS,
+    _noise_state_key,
     main,
     optimal_returns_under_action_noise,
     oracle_returns,
@@ -51,6 +52,8 @@ def _cell(char: str):
         "X": lambda: Box("red"),  # empty
         "Y": lambda: Box("grey", contains=Key("yellow")),
         "T": lambda: Ball("blue"),  # the object to pick up, in a pickup task
+        "U": lambda: Ball("blue"),  # looks like T, is not the object to pick up
+        "Z": lambda: Box("grey"),  # empty, looks like Y
     }.get(char, lambda: None)()
 
 
@@ -59,8 +62,9 @@ class LayoutEnv(MiniGridEnv):
 
     ``#`` wall, ``.`` empty, ``F`` floor, ``G`` goal, ``~`` lava, ``D`` closed yellow door, ``O``
     open yellow door, ``L`` / ``M`` locked yellow / blue door, ``K`` / ``k`` yellow /
-    blue key, ``B`` ball, ``X`` empty box, ``Y`` box holding a yellow key, ``T`` blue
-    ball, and ``> v < ^`` the agent and its direction.
+    blue key, ``B`` ball, ``X`` empty box, ``Y`` box holding a yellow key, ``Z``
+    empty box looking like ``Y``, ``T`` blue ball (``U`` another), and ``> v < ^``
+    the agent and its direction.
     """
 
     def __init__(self, rows: list[str], max_steps: int = 100, **kwargs):
@@ -761,6 +765,33 @@ def test_action_noise_optimum_hand_computed():
     # Every action random (p = 1): the mean over actions, no choice left.
     (random,) = optimal_returns_under_action_noise(env, [1.0])
     assert random == pytest.approx(first / 7 + 4 / 7 / 7 * last, abs=1e-12)
+    # Mid-episode the steps taken count: after a no-op, the same two steps pay
+    # what steps 2 and 3 of 3 pay.
+    env = _make(["####", "#>G#", "####"], max_steps=3)
+    env.step(DONE)
+    first, last = _minigrid_return(2, 3), _minigrid_return(3, 3)
+    (noisy,) = optimal_returns_under_action_noise(env, [p])
+    assert noisy == pytest.approx(q * first + p * 4 / 7 * q * last, abs=1e-12)
+    (free,) = optimal_returns_under_action_noise(env, [0.0])
+    assert free == solve_minigrid(env).episode_return == first
+
+
+def test_action_noise_states_differ_in_what_boxes_hold_and_which_object_is_the_target():
+    # Two grey boxes, one holding the key: swapped, the grid encodes the same.
+    env = _make(["#######", "#>ZY.G#", "#######"])
+    key = _noise_state_key(env, pickup_task=False)
+    left, right = env.grid.get(2, 1), env.grid.get(3, 1)
+    env.grid.set(2, 1, right)
+    env.grid.set(3, 1, left)
+    assert env.grid.encode().tobytes() == key[-1]
+    assert _noise_state_key(env, pickup_task=False) != key
+    # A pickup task's target and a ball that looks the same, swapped.
+    env = _make_pickup(["######", "#>TU.#", "######"])
+    key = _noise_state_key(env, pickup_task=True)
+    target, twin = env.grid.get(2, 1), env.grid.get(3, 1)
+    env.grid.set(2, 1, twin)
+    env.grid.set(3, 1, target)
+    assert _noise_state_key(env, pickup_task=True) != key
 
 
 @pytest.mark.parametrize(

@@ -749,28 +749,35 @@ def oracle_returns(
         env.close()
 
 
-def _noise_state_key(env: MiniGridEnv) -> tuple:
+def _describe(obj: Any) -> tuple | None:
+    """An object's encoding with what it holds, boxes in boxes included."""
+    if obj is None:
+        return None
+    return (obj.encode(), _describe(getattr(obj, "contains", None)))
+
+
+def _noise_state_key(env: MiniGridEnv, pickup_task: bool) -> tuple:
     """A hashable full state of ``env``: what its ``step`` reads and changes.
 
-    ``Grid.encode`` holds every cell's object, colour and door state; the boxes'
-    contents (not encoded) are added, so two states differ wherever a box holds
-    something else (boxes can be carried and swapped).
+    ``Grid.encode`` holds every cell's object, colour and door state; added are
+    what the boxes hold (not encoded; boxes can be carried and swapped) and, in a
+    pickup task, where the object to pick up is (its success compares objects,
+    not their looks): two states differ wherever one of these does.
     """
-    carrying = env.carrying
-    contents = tuple(
-        (i, None if obj.contains is None else obj.contains.encode())
-        for i, obj in enumerate(env.grid.grid)
-        if isinstance(obj, Box)
-    )
-    carried = None
-    if carrying is not None:
-        inside = getattr(carrying, "contains", None)
-        carried = (carrying.encode(), None if inside is None else inside.encode())
+    contents, target = [], None
+    for i, obj in enumerate(env.grid.grid):
+        if isinstance(obj, Box):
+            contents.append((i, _describe(obj.contains)))
+        if pickup_task and obj is env.obj:
+            target = i
+    if pickup_task and env.carrying is env.obj:
+        target = _CARRIED
     return (
         tuple(int(x) for x in env.agent_pos),
         int(env.agent_dir),
-        carried,
-        contents,
+        _describe(env.carrying),
+        tuple(contents),
+        target,
         env.grid.encode().tobytes(),
     )
 
@@ -834,16 +841,17 @@ def optimal_returns_under_action_noise(
         raise TypeError(f"needs a MiniGridEnv, got {type(base)}")
     if base.grid is None or base.agent_pos is None:
         raise ValueError("optimal_returns_under_action_noise: reset the env first")
-    _check_semantics(base)
+    pickup_task = _check_semantics(base) is not None
     num_actions = int(base.action_space.n)
     max_steps, start_count = int(base.max_steps), int(base.step_count)
     # Enumerate the reachable states: successors[s][a] is a state's index, or
     # _NOISE_SUCCESS / _NOISE_FAILURE when the action ends the episode.
     root = copy.deepcopy(base)
-    index = {_noise_state_key(root): 0}
+    index = {_noise_state_key(root, pickup_task): 0}
     states, successors = [root], []
     while len(successors) < len(states):
         state = states[len(successors)]
+        states[len(successors)] = None  # expanded: only its index is kept
         row = []
         for action in range(num_actions):
             child = copy.deepcopy(state)
@@ -852,7 +860,7 @@ def optimal_returns_under_action_noise(
             if terminated:
                 row.append(_NOISE_SUCCESS if reward > 0 else _NOISE_FAILURE)
                 continue
-            key = _noise_state_key(child)
+            key = _noise_state_key(child, pickup_task)
             if key not in index:
                 if len(states) == max_states:
                     raise ValueError(
