@@ -40,7 +40,7 @@ SUITE_DIRS = $(filter-out %_16x128/ %_64x32/,$(wildcard docs/results/suite_*/))
 figures: $(STAMP)
 	$(PY) recipes/results/aggregate.py --all docs/results
 	$(PY) recipes/results/suite.py $(SUITE_DIRS) --task-min-seeds KeyCorridorS6R3=3 \
-		--task-min-seeds ObstructedMaze-1Dlhb=3 \
+		--task-min-seeds ObstructedMaze-1Dlhb=3 --task-min-seeds ObstructedMaze-2Dlhb=3 \
 		--published docs/results/suite_published.csv --out docs/results/suite
 	for rows in docs/results/heatmaps/*_layouts.csv; do \
 		$(PY) recipes/results/heatmap.py --from-layouts $$rows || exit 1; \
