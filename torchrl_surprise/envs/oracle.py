@@ -645,6 +645,31 @@ def _check_semantics(env: MiniGridEnv) -> Any:
     )
 
 
+def _reset_minigrid(env: gym.Env, caller: str) -> tuple[MiniGridEnv, Any]:
+    """The unwrapped MiniGrid env, reset, and its task's object to pick up (None
+    for goal tasks), or raises naming ``caller``."""
+    base = env.unwrapped
+    if not isinstance(base, MiniGridEnv):
+        raise TypeError(f"{caller} needs a MiniGridEnv, got {type(base)}")
+    if base.grid is None or base.agent_pos is None:
+        raise ValueError(f"{caller}: reset the env first")
+    return base, _check_semantics(base)
+
+
+def _each_layout(env_id: str, seeds: Iterable[int], solve, **make_kwargs) -> list:
+    """``solve(env)`` of ``gym.make(env_id)`` after ``reset(seed=s)``, per seed."""
+    register_minigrid_envs()
+    env = gym.make(env_id, **make_kwargs)
+    try:
+        results = []
+        for seed in seeds:
+            env.reset(seed=int(seed))
+            results.append(solve(env))
+        return results
+    finally:
+        env.close()
+
+
 def solve_minigrid(env: gym.Env) -> OracleSolution:
     """Finds a shortest action sequence that solves the episode, by A* search.
 
@@ -700,12 +725,7 @@ def solve_minigrid(env: gym.Env) -> OracleSolution:
         >>> terminated, reward == solution.episode_return
         (True, True)
     """
-    base = env.unwrapped
-    if not isinstance(base, MiniGridEnv):
-        raise TypeError(f"solve_minigrid needs a MiniGridEnv, got {type(base)}")
-    if base.grid is None or base.agent_pos is None:
-        raise ValueError("solve_minigrid: reset the env first")
-    target = _check_semantics(base)
+    base, target = _reset_minigrid(env, "solve_minigrid")
     max_steps = int(base.max_steps)
     step_count = int(base.step_count)
     actions = _shortest_actions(_read_layout(base, target), max_steps - step_count)
@@ -737,16 +757,7 @@ def oracle_returns(
         >>> [s.num_steps for s in solutions]
         [11, 7, 13]
     """
-    register_minigrid_envs()
-    env = gym.make(env_id, **make_kwargs)
-    try:
-        solutions = []
-        for seed in seeds:
-            env.reset(seed=int(seed))
-            solutions.append(solve_minigrid(env))
-        return solutions
-    finally:
-        env.close()
+    return _each_layout(env_id, seeds, solve_minigrid, **make_kwargs)
 
 
 def _describe(obj: Any) -> tuple | None:
@@ -821,6 +832,7 @@ def optimal_returns_under_action_noise(
         ValueError: a ``p`` outside ``[0, 1]``, more than ``max_states``
             reachable states, or an env whose task :func:`solve_minigrid`
             refuses.
+        TypeError: the env is not a MiniGrid env.
 
     Examples:
         >>> import gymnasium as gym
@@ -836,12 +848,8 @@ def optimal_returns_under_action_noise(
     bad = [p for p in levels if not 0.0 <= p <= 1.0]
     if bad:
         raise ValueError(f"action_noise: each p must be in [0, 1], got {bad}")
-    base = env.unwrapped
-    if not isinstance(base, MiniGridEnv):
-        raise TypeError(f"needs a MiniGridEnv, got {type(base)}")
-    if base.grid is None or base.agent_pos is None:
-        raise ValueError("optimal_returns_under_action_noise: reset the env first")
-    pickup_task = _check_semantics(base) is not None
+    base, target = _reset_minigrid(env, "optimal_returns_under_action_noise")
+    pickup_task = target is not None
     num_actions = int(base.action_space.n)
     max_steps, start_count = int(base.max_steps), int(base.step_count)
     # Enumerate the reachable states: successors[s][a] is a state's index, or
@@ -911,18 +919,14 @@ def noisy_oracle_table(
         >>> 0.9 < row["fraction_of_noise_free"] < 1.0
         True
     """
-    register_minigrid_envs()
     levels = [float(p) for p in action_noise]
     rows = []
     for env_id in env_ids:
-        env = gym.make(env_id)
-        try:
-            returns = []
-            for seed in range(num_seeds):
-                env.reset(seed=seed)
-                returns.append(optimal_returns_under_action_noise(env, [0.0, *levels]))
-        finally:
-            env.close()
+        returns = _each_layout(
+            env_id,
+            range(num_seeds),
+            lambda env: optimal_returns_under_action_noise(env, [0.0, *levels]),
+        )
         free = statistics.fmean(r[0] for r in returns)
         for i, p in enumerate(levels, start=1):
             noisy = [r[i] for r in returns]
