@@ -185,7 +185,9 @@ def test_a_view_of_the_wrong_shape_is_refused_naming_the_expected_one():
         episode_milestones(steps)
 
 
-def _checkpoint(run_dir, env_name: str, backend: str = "gymnasium", **env):
+def _checkpoint(
+    run_dir, env_name: str, backend: str = "gymnasium", *, frames: int = 512, **env
+):
     torch.manual_seed(0)
     model, _ = make_actor_critic(Categorical(7), intrinsic_critic=False)
     config = {
@@ -195,7 +197,7 @@ def _checkpoint(run_dir, env_name: str, backend: str = "gymnasium", **env):
         "env": {"name": env_name, "backend": backend, **env},
     }
     run_dir.mkdir()
-    progress = RunCounters(frames=512)
+    progress = RunCounters(frames=frames)
     RunCheckpoint(
         run_dir / "checkpoint.torchrl", {"progress": progress, "model": model}, config
     ).save()
@@ -224,6 +226,36 @@ def test_a_runs_policy_is_played_for_each_envs_first_episodes(tmp_path, backend)
     from_file = pd.read_csv(tmp_path / "file.csv")
     assert from_file.pop("run").tolist() == [str(ckpt)]
     pd.testing.assert_frame_equal(from_file, table.drop(columns="run"))
+
+
+def test_a_committed_table_plus_new_runs_is_the_table_of_all_at_once(tmp_path, capsys):
+    # runs no longer on disk live on in their committed table (--from-data): new
+    # runs added to it give the table all of them would give at once, a run's
+    # points of training in the order of their frames; a run given again
+    # replaces its row
+    for name, frames in [("late", 1024), ("early", 512)]:
+        _checkpoint(tmp_path / name, "MiniGrid-DoorKey-5x5-v0", frames=frames)
+    late, early = str(tmp_path / "late"), str(tmp_path / "early")
+    common = ["--envs", "2", "--episodes", "1", "--out"]
+    whole, part = tmp_path / "whole.csv", tmp_path / "part.csv"
+    assert main([late, early, *common, str(whole)]) == 0
+    assert pd.read_csv(whole)["frames"].tolist() == [512, 1024]
+    assert main([late, *common, str(part)]) == 0
+    for _ in range(2):  # in place, and again
+        assert main([early, "--from-data", str(part), *common, str(part)]) == 0
+        assert part.read_bytes() == whole.read_bytes()
+    # an earlier table that is not this tool's, or is not there, is named
+    other = tmp_path / "other.csv"
+    pd.DataFrame({"run": [late], "score": [0.5]}).to_csv(other, index=False)
+    for earlier, expected in [
+        (other, "has the columns ['run', 'score']"),
+        (tmp_path / "nowhere.csv", "nowhere.csv does not exist"),
+    ]:
+        with pytest.raises(SystemExit) as exit_:
+            main([early, "--from-data", str(earlier), *common, str(part)])
+        assert exit_.value.code == 2
+        assert expected in capsys.readouterr().err
+    assert part.read_bytes() == whole.read_bytes()  # nothing written
 
 
 def test_the_policy_acts_by_sampling_as_in_training(tmp_path):

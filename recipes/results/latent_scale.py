@@ -161,7 +161,12 @@ def run_scale(run_dir: str | Path, loaded, episodes) -> dict:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from results.run_tools import checkpoint_parser, load_runs, write_table
+    from results.run_tools import (
+        checkpoint_parser,
+        load_runs,
+        merge_earlier,
+        write_table,
+    )
 
     parser = checkpoint_parser("latent_scale.py", __doc__, envs=8)
     parser.add_argument("--steps", type=int, default=600, help="steps per env")
@@ -175,7 +180,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if env not in episodes:
             episodes[env] = random_episodes(*env, args.envs, args.steps, args.seed)
         rows.append(run_scale(run, loaded[run], episodes[env]))
-    write_table(pd.DataFrame(rows, columns=list(COLUMNS)), args.out)
+    table = pd.DataFrame(rows, columns=list(COLUMNS))
+    write_table(merge_earlier(parser, table, args.from_data), args.out)
     return 0
 
 

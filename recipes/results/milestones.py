@@ -357,7 +357,12 @@ def run_milestones(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from results.run_tools import checkpoint_parser, load_runs, write_table
+    from results.run_tools import (
+        checkpoint_parser,
+        load_runs,
+        merge_earlier,
+        write_table,
+    )
 
     parser = checkpoint_parser("milestones.py", __doc__, envs=32)
     parser.add_argument(
@@ -371,8 +376,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         steps = args.episodes * max_steps(config["env"]["name"])
         episodes = policy_episodes(policy, config, args.envs, steps, args.seed)
         rows.append(run_milestones(run, loaded[run], episodes, args.episodes))
-    table = pd.DataFrame(rows, columns=list(COLUMNS))
-    write_table(table.sort_values(["setting", "seed"], kind="stable"), args.out)
+    table = merge_earlier(
+        parser, pd.DataFrame(rows, columns=list(COLUMNS)), args.from_data
+    )
+    # a run's points of training (kept checkpoints) in the order of their frames
+    order = ["setting", "seed", "frames", "run"]
+    write_table(table.sort_values(order, kind="stable"), args.out)
     return 0
 
 

@@ -1,7 +1,7 @@
 """The command line the results tools that read runs' checkpoints share
 (``latent_scale.py``, ``milestones.py``): run directories, a rollout's envs and
-seed, the CSV to write; each run loaded or the command refused, naming why; the
-table written and printed."""
+seed, the CSV to write and an earlier one to add to; each run loaded or the
+command refused, naming why; the table written and printed."""
 
 from __future__ import annotations
 
@@ -12,18 +12,19 @@ from typing import Any
 
 import pandas as pd
 
-__all__ = ["checkpoint_parser", "load_runs", "write_table"]
+__all__ = ["checkpoint_parser", "load_runs", "merge_earlier", "write_table"]
 
 
 def checkpoint_parser(script: str, doc: str, *, envs: int) -> argparse.ArgumentParser:
     """The parser of ``recipes/results/<script>``: ``runs``, ``--envs`` (default
-    ``envs``), ``--seed``, ``--out``; its description is ``doc``'s first paragraph.
+    ``envs``), ``--seed``, ``--out``, ``--from-data``; its description is
+    ``doc``'s first paragraph.
 
     Examples:
         >>> parser = checkpoint_parser("tool.py", "Does X.\\n\\nMore.", envs=4)
         >>> args = parser.parse_args(["run_a", "--seed", "2"])
-        >>> args.runs, args.envs, args.seed, args.out
-        ([PosixPath('run_a')], 4, 2, None)
+        >>> args.runs, args.envs, args.seed, args.out, args.from_data
+        ([PosixPath('run_a')], 4, 2, None, None)
     """
     parser = argparse.ArgumentParser(
         prog=f"python recipes/results/{script}",
@@ -35,6 +36,15 @@ def checkpoint_parser(script: str, doc: str, *, envs: int) -> argparse.ArgumentP
     parser.add_argument("--envs", type=int, default=envs, help="envs of the rollout")
     parser.add_argument("--seed", type=int, default=0, help="seed of the rollout")
     parser.add_argument("--out", type=Path, help="CSV to write")
+    parser.add_argument(
+        "--from-data",
+        type=Path,
+        help=(
+            "an earlier table of this tool (a committed CSV whose runs are no "
+            "longer on disk): its rows are kept beside the runs given, a run "
+            "given again replacing its row"
+        ),
+    )
     return parser
 
 
@@ -52,6 +62,42 @@ def load_runs(
         except (FileNotFoundError, ValueError) as error:
             parser.error(str(error))
     return loaded
+
+
+def merge_earlier(
+    parser: argparse.ArgumentParser, table: pd.DataFrame, earlier: Path | None
+) -> pd.DataFrame:
+    """``earlier``'s rows (when given) followed by ``table``'s; a row of
+    ``earlier`` whose ``run`` is in ``table`` is dropped (a run read again
+    replaces itself). An ``earlier`` that is missing or has other columns than
+    ``table`` ends the command with the parser's error (exit 2), naming them.
+
+    Examples:
+        >>> import tempfile
+        >>> parser = checkpoint_parser("tool.py", "Does X.", envs=4)
+        >>> old = pd.DataFrame({"run": ["runs/a", "runs/b"], "score": [0.5, 0.1]})
+        >>> new = pd.DataFrame({"run": ["runs/b", "runs/c"], "score": [0.2, 0.9]})
+        >>> with tempfile.TemporaryDirectory() as folder:
+        ...     old.to_csv(f"{folder}/old.csv", index=False)
+        ...     merged = merge_earlier(parser, new, Path(f"{folder}/old.csv"))
+        >>> merged.to_dict("list")
+        {'run': ['runs/a', 'runs/b', 'runs/c'], 'score': [0.5, 0.2, 0.9]}
+    """
+    if earlier is None:
+        return table
+    if not earlier.is_file():
+        parser.error(f"--from-data {earlier} does not exist")
+    old = pd.read_csv(earlier)
+    if list(old.columns) != list(table.columns):
+        parser.error(
+            f"--from-data {earlier} has the columns {list(old.columns)}; this tool "
+            f"writes {list(table.columns)}: give a table it wrote"
+        )
+    new_runs = set(table["run"].astype(str))
+    old = old[~old["run"].astype(str).isin(new_runs)]
+    if old.empty:
+        return table.reset_index(drop=True)
+    return pd.concat([old, table], ignore_index=True)
 
 
 def write_table(table: pd.DataFrame, out: Path | None) -> None:
