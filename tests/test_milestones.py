@@ -16,12 +16,15 @@ from common.minigrid import make_actor_critic
 from common.run import RunCheckpoint, RunCounters
 from results.milestones import (
     MILESTONES,
+    TOGGLE_COLUMNS,
+    TOGGLE_CONTEXTS,
     Episodes,
     episode_milestones,
     load_policy,
     main,
     max_steps,
     policy_episodes,
+    toggle_contexts,
     toggle_probability_at_door,
 )
 from torchrl_surprise.envs.oracle import solve_minigrid
@@ -185,6 +188,88 @@ def test_a_view_of_the_wrong_shape_is_refused_naming_the_expected_one():
         episode_milestones(steps)
 
 
+def _contexts_from_the_env(env_id: str, seed: int) -> tuple[list[str | None], list]:
+    # the oracle's solution played in the real env; before each step, the context
+    # read from the env's own state (the object in front of the agent, what it
+    # carries), not from its view
+    from minigrid.core.world_object import Box, Door, Key
+
+    env = gym.make(env_id)
+    env.reset(seed=seed)
+    game = env.unwrapped
+    actions = solve_minigrid(game).actions
+    contexts = []
+    for action in actions:
+        front, held = game.grid.get(*game.front_pos), game.carrying
+        if isinstance(front, Door) and front.is_locked:
+            its_key = isinstance(held, Key) and held.color == front.color
+            contexts.append(
+                "key_at_its_door" if its_key else "locked_door_without_its_key"
+            )
+        elif isinstance(front, Door) and not front.is_open:
+            contexts.append("closed_door")
+        elif isinstance(front, Box):
+            contexts.append("box")
+        else:
+            contexts.append(None)
+        env.step(action)
+    env.close()
+    return contexts, actions
+
+
+@pytest.mark.parametrize(
+    "env_id, seed, passed",
+    [
+        # the locked door before its key is held, the box, the door with its key
+        (
+            "MiniGrid-ObstructedMaze-1Dlhb-v0",
+            3,
+            {"locked_door_without_its_key", "box", "key_at_its_door"},
+        ),
+        ("MiniGrid-MultiRoom-N2-S4-v0", 1, {"closed_door"}),
+        (
+            "MiniGrid-DoorKey-5x5-v0",
+            2,
+            {"locked_door_without_its_key", "key_at_its_door"},
+        ),
+    ],
+)
+def test_each_toggle_context_is_the_one_the_envs_own_state_gives(env_id, seed, passed):
+    contexts, actions = _contexts_from_the_env(env_id, seed)
+    assert passed <= set(contexts)  # the solution passes through them
+    steps = _played(env_id, seed, actions=actions)
+    n = len(actions)
+    logits = torch.randn(1, n, 7, generator=torch.manual_seed(1))
+    read = toggle_contexts(steps._replace(logits=logits))
+    toggle = logits[0].softmax(-1)[:, 5]
+    for context in TOGGLE_CONTEXTS:
+        at = [t for t, c in enumerate(contexts) if context in ("anywhere", c)]
+        expected = float(toggle[at].mean()) if at else math.nan
+        count, probability = read[context]
+        assert count == len(at), context
+        assert probability == pytest.approx(expected, nan_ok=True), context
+    # the door's toggle is the one toggle_probability_at_door reads
+    door = read["key_at_its_door"][1]
+    assert toggle_probability_at_door(steps._replace(logits=logits)) == pytest.approx(
+        door, nan_ok=True
+    )
+
+
+def test_toggle_contexts_score_each_envs_first_episodes_and_need_logits():
+    solved = _played("MiniGrid-DoorKey-5x5-v0", seed=1)
+    cut = _played("MiniGrid-DoorKey-5x5-v0", seed=1)
+    cut.done[0, -1] = False
+    n = solved.image.shape[1]
+    steps = _joined(solved, cut)._replace(logits=torch.zeros(1, 2 * n, 7))
+    read = toggle_contexts(steps)
+    assert read["anywhere"] == (n, pytest.approx(1 / 7))  # the cut one left out
+    assert read["key_at_its_door"][0] == 1
+    with pytest.raises(ValueError, match="env 0 ended 1 episodes.*at least 2"):
+        toggle_contexts(steps, per_env=2)
+    with pytest.raises(ValueError, match="expected the policy's logits"):
+        toggle_contexts(solved)
+
+
 def _checkpoint(
     run_dir, env_name: str, backend: str = "gymnasium", *, frames: int = 512, **env
 ):
@@ -256,6 +341,34 @@ def test_a_committed_table_plus_new_runs_is_the_table_of_all_at_once(tmp_path, c
         assert exit_.value.code == 2
         assert expected in capsys.readouterr().err
     assert part.read_bytes() == whole.read_bytes()  # nothing written
+
+
+def test_toggles_writes_where_the_policy_would_toggle(tmp_path, capsys):
+    _checkpoint(tmp_path / "run", "MiniGrid-DoorKey-5x5-v0")
+    argv = [str(tmp_path / "run"), "--envs", "3", "--episodes", "2", "--toggles"]
+    out = tmp_path / "toggles.csv"
+    assert main([*argv, "--out", str(out)]) == 0
+    table = pd.read_csv(out)
+    assert list(table.columns) == list(TOGGLE_COLUMNS)
+    row = table.iloc[0]
+    assert (row["setting"], row["seed"], row["frames"], row["episodes"]) == (
+        "demo",
+        4,
+        512,
+        6,
+    )
+    # 2 episodes of DoorKey-5x5 (at most 250 steps each) in each of 3 envs
+    assert 6 <= row["steps_anywhere"] <= 3 * 2 * 250
+    assert 0.0 < row["toggle_anywhere"] < 1.0
+    # the same episodes as the milestones': where the key faces its door
+    milestones = tmp_path / "milestones.csv"
+    assert main([*argv[:-1], "--out", str(milestones)]) == 0
+    door = pd.read_csv(milestones)["toggle_prob_at_door"].iloc[0]
+    assert row["toggle_key_at_its_door"] == pytest.approx(door, nan_ok=True)
+    # a milestones table is not a toggles one
+    with pytest.raises(SystemExit):
+        main([*argv, "--from-data", str(milestones), "--out", str(out)])
+    assert "has the columns ['run', 'setting'" in capsys.readouterr().err
 
 
 def test_the_policy_acts_by_sampling_as_in_training(tmp_path):

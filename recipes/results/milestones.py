@@ -41,6 +41,16 @@ It reads the view before each step (where the action is chosen), the milestones
 the view after it, so an episode that first faces the door at its last step
 counts as ``faced_locked_door_with_key`` and adds no step here.
 
+With ``--toggles``, the table is instead where the policy would toggle: for
+each context of :data:`TOGGLE_CONTEXTS` (the cell in front of the agent, in the
+view before the step), the number of scored steps in it (``steps_<context>``) and
+the policy's mean probability of the toggle action over them
+(``toggle_<context>``, empty without steps; a uniform policy's is 1/7): anywhere,
+holding a key at its locked door, at a locked door without its key (where a
+toggle does nothing), at a closed door, at a box (a toggle opens it). They tell a
+policy that rules out toggling everywhere from one that rules it out at locked
+doors only.
+
 A run trained with ``env.stochasticity`` is refused: its noise is not replayed.
 A run is a run directory (its latest checkpoint) or one checkpoint file: a run
 made with ``checkpoint.keep=true`` keeps each periodic one as
@@ -52,10 +62,12 @@ Usage::
     python recipes/results/milestones.py runs/ppo_minigrid/suite_obstructedmaze_1dlhb/+setting=*,seed=* \\
         --out docs/results/milestones/obstructedmaze_1dlhb.csv
     python recipes/results/milestones.py "runs/ppo_minigrid/suite_obstructedmaze_2dlhb/+setting=vae_noveld,seed=0"/checkpoints/*.torchrl
+    python recipes/results/milestones.py runs/ppo_minigrid/suite_obstructedmaze_1dlhb/+setting=*,seed=* --toggles
 """
 
 from __future__ import annotations
 
+import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -72,17 +84,21 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 __all__ = [
     "COLUMNS",
     "MILESTONES",
+    "TOGGLE_COLUMNS",
+    "TOGGLE_CONTEXTS",
     "Episodes",
     "episode_milestones",
     "load_policy",
     "max_steps",
     "policy_episodes",
     "run_milestones",
+    "run_toggles",
+    "toggle_contexts",
     "toggle_probability_at_door",
 ]
 
 _DOOR, _KEY, _BALL, _BOX = (OBJECT_TO_IDX[k] for k in ("door", "key", "ball", "box"))
-_OPEN, _LOCKED = STATE_TO_IDX["open"], STATE_TO_IDX["locked"]
+_OPEN, _CLOSED, _LOCKED = (STATE_TO_IDX[k] for k in ("open", "closed", "locked"))
 #: The agent's cell of its 7x7 view ([x, y]) and the cell in front of it.
 _AGENT, _FRONT = (3, 6), (3, 5)
 
@@ -107,6 +123,28 @@ COLUMNS = (
     "episodes",
     *MILESTONES,
     "toggle_prob_at_door",
+)
+
+
+#: Where ``--toggles`` reads the policy's toggle probability: the cell in front
+#: of the agent (and what it holds) in the view before the step.
+TOGGLE_CONTEXTS = (
+    "anywhere",
+    "key_at_its_door",
+    "locked_door_without_its_key",
+    "closed_door",
+    "box",
+)
+
+#: Columns of ``--toggles``' output, per run.
+TOGGLE_COLUMNS = (
+    "run",
+    "setting",
+    "seed",
+    "frames",
+    "episodes",
+    *(f"steps_{context}" for context in TOGGLE_CONTEXTS),
+    *(f"toggle_{context}" for context in TOGGLE_CONTEXTS),
 )
 
 
@@ -221,6 +259,74 @@ def episode_milestones(episodes: Episodes, per_env: int | None = None) -> pd.Dat
     return pd.DataFrame(rows, columns=list(MILESTONES), dtype=bool)
 
 
+def _scored_steps(episodes: Episodes, per_env: int | None) -> torch.Tensor:
+    # [envs, steps]: the steps of each env's first ``per_env`` ended episodes
+    envs, steps = episodes.image.shape[:2]
+    done = episodes.done.reshape(envs, steps).bool()
+    scored = torch.zeros_like(done)
+    for env, start, end in _scored_episodes(done, per_env):
+        scored[env, start : end + 1] = True
+    return scored
+
+
+def _toggle_probability(episodes: Episodes) -> torch.Tensor:
+    # [envs, steps]: the policy's probability of the toggle action at each step
+    if episodes.logits is None:
+        raise ValueError("expected the policy's logits at each step, got none")
+    return episodes.logits.float().softmax(-1)[..., int(Actions.toggle)]
+
+
+def toggle_contexts(
+    episodes: Episodes, per_env: int | None = None
+) -> dict[str, tuple[int, float]]:
+    """For each context of :data:`TOGGLE_CONTEXTS`, ``(steps, probability)``: how
+    many steps of each env's first ``per_env`` ended episodes (all ended ones
+    without it) are in it, and the policy's mean probability of the toggle action
+    over them (NaN without steps). A context is read from the view before the
+    step: the cell in front of the agent and what the agent holds.
+
+    Raises:
+        ValueError: the episodes carry no ``logits``, or an env ended fewer than
+            ``per_env`` episodes.
+
+    Examples:
+        >>> image = torch.zeros(1, 3, 7, 7, 3, dtype=torch.uint8)
+        >>> image[0, 0, 3, 5] = torch.tensor([4, 4, 2])  # a locked yellow door
+        >>> image[0, 1, 3, 5] = torch.tensor([7, 1, 0])  # a box
+        >>> image[0, 2, 3, 6] = torch.tensor([5, 4, 0])  # holds a yellow key...
+        >>> image[0, 2, 3, 5] = torch.tensor([4, 4, 2])  # ...at its door
+        >>> logits = torch.zeros(1, 3, 7)  # uniform: 1/7 everywhere
+        >>> done = torch.tensor([[False, False, True]])
+        >>> steps = Episodes(image, image, torch.zeros(1, 3), done, torch.zeros(1, 3),
+        ...                  logits)
+        >>> {k: (n, round(p, 4)) for k, (n, p) in toggle_contexts(steps).items()}
+        ... # doctest: +NORMALIZE_WHITESPACE
+        {'anywhere': (3, 0.1429), 'key_at_its_door': (1, 0.1429),
+         'locked_door_without_its_key': (1, 0.1429), 'closed_door': (0, nan),
+         'box': (1, 0.1429)}
+    """
+    toggle = _toggle_probability(episodes)
+    scored = _scored_steps(episodes, per_env)
+    image = episodes.image
+    front = image[..., _FRONT[0], _FRONT[1], :]
+    at_door = _key_at_its_door(image)
+    masks = {
+        "anywhere": torch.ones_like(scored),
+        "key_at_its_door": at_door,
+        "locked_door_without_its_key": (front[..., 0] == _DOOR)
+        & (front[..., 2] == _LOCKED)
+        & ~at_door,
+        "closed_door": (front[..., 0] == _DOOR) & (front[..., 2] == _CLOSED),
+        "box": front[..., 0] == _BOX,
+    }
+    result = {}
+    for context in TOGGLE_CONTEXTS:
+        mask = masks[context] & scored
+        steps = int(mask.sum())
+        result[context] = (steps, float(toggle[mask].mean()) if steps else math.nan)
+    return result
+
+
 def toggle_probability_at_door(episodes: Episodes, per_env: int | None = None) -> float:
     """The policy's mean probability of the toggle action over the steps at which
     the agent holds a key facing a locked door of its colour (NaN when there are
@@ -243,18 +349,7 @@ def toggle_probability_at_door(episodes: Episodes, per_env: int | None = None) -
         >>> round(toggle_probability_at_door(steps), 4)
         0.3118
     """
-    if episodes.logits is None:
-        raise ValueError("expected the policy's logits at each step, got none")
-    envs, steps = episodes.image.shape[:2]
-    done = episodes.done.reshape(envs, steps).bool()
-    scored = torch.zeros_like(done)
-    for env, start, end in _scored_episodes(done, per_env):
-        scored[env, start : end + 1] = True
-    at_door = _key_at_its_door(episodes.image) & scored
-    if not at_door.any():
-        return float("nan")
-    toggle = episodes.logits.float().softmax(-1)[..., int(Actions.toggle)]
-    return float(toggle[at_door].mean())
+    return toggle_contexts(episodes, per_env)["key_at_its_door"][1]
 
 
 def load_policy(run_dir: str | Path):
@@ -333,26 +428,44 @@ def policy_episodes(policy, config: dict, envs: int, steps: int, seed: int) -> E
     )
 
 
+def _run_row(run_dir: str | Path, loaded, episodes: int) -> dict:
+    # the columns every row starts with: the run, its labels, frames, episodes
+    from common.labels import run_labels
+
+    _, config, frames = loaded
+    labels = run_labels(config, run_dir)
+    return {
+        "run": str(run_dir),
+        "setting": labels["setting"],
+        "seed": labels["seed"],
+        "frames": frames,
+        "episodes": episodes,
+    }
+
+
 def run_milestones(
     run_dir: str | Path, loaded, episodes: Episodes, per_env: int
 ) -> dict:
     """One run's row of :data:`COLUMNS`: ``loaded`` from :func:`load_policy`, its
     ``episodes`` from :func:`policy_episodes`, each env's first ``per_env``."""
-    from common.labels import run_labels
-
-    _, config, frames = loaded
     table = episode_milestones(episodes, per_env)
-    labels = run_labels(config, run_dir)
-    row = {
-        "run": str(run_dir),
-        "setting": labels["setting"],
-        "seed": labels["seed"],
-        "frames": frames,
-        "episodes": len(table),
-    }
+    row = _run_row(run_dir, loaded, len(table))
     for name in MILESTONES:
         row[name] = round(float(table[name].mean()), 4)
     row["toggle_prob_at_door"] = round(toggle_probability_at_door(episodes, per_env), 4)
+    return row
+
+
+def run_toggles(run_dir: str | Path, loaded, episodes: Episodes, per_env: int) -> dict:
+    """One run's row of :data:`TOGGLE_COLUMNS` (``--toggles``): the arguments of
+    :func:`run_milestones`."""
+    contexts = toggle_contexts(episodes, per_env)
+    # each env's first per_env episodes (toggle_contexts refuses an env with fewer)
+    row = _run_row(run_dir, loaded, episodes.image.shape[0] * per_env)
+    for context, (steps, _) in contexts.items():
+        row[f"steps_{context}"] = steps
+    for context, (_, probability) in contexts.items():
+        row[f"toggle_{context}"] = round(probability, 4)
     return row
 
 
@@ -368,16 +481,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--episodes", type=int, default=2, help="episodes scored per env"
     )
+    parser.add_argument(
+        "--toggles",
+        action="store_true",
+        help="write where the policy would toggle (TOGGLE_COLUMNS), not milestones",
+    )
     args = parser.parse_args(argv)
+    row_of, columns = (
+        (run_toggles, TOGGLE_COLUMNS) if args.toggles else (run_milestones, COLUMNS)
+    )
     torch.set_num_threads(1)
     loaded = load_runs(parser, args.runs, load_policy)
     rows = []
     for run, (policy, config, _) in loaded.items():
         steps = args.episodes * max_steps(config["env"]["name"])
         episodes = policy_episodes(policy, config, args.envs, steps, args.seed)
-        rows.append(run_milestones(run, loaded[run], episodes, args.episodes))
+        rows.append(row_of(run, loaded[run], episodes, args.episodes))
     table = merge_earlier(
-        parser, pd.DataFrame(rows, columns=list(COLUMNS)), args.from_data
+        parser, pd.DataFrame(rows, columns=list(columns)), args.from_data
     )
     # a run's points of training (kept checkpoints) in the order of their frames
     order = ["setting", "seed", "frames", "run"]
