@@ -63,6 +63,23 @@ def test_longer_posterior_means_change_the_raw_bonus_not_the_unit_one(tmp_path):
     assert long["other_mean"] > short["other_mean"]
 
 
+def test_a_committed_table_plus_a_new_run_is_the_table_of_both_at_once(tmp_path):
+    # --from-data: a run no longer on disk keeps its committed row, in its place
+    _run(tmp_path / "short", "elliptical")
+    _run(tmp_path / "long", "elliptical", loc_scale=3.0)
+    short, long = str(tmp_path / "short"), str(tmp_path / "long")
+    common = ["--envs", "2", "--steps", "20", "--out"]
+    whole, part = tmp_path / "whole.csv", tmp_path / "part.csv"
+    assert main([short, long, *common, str(whole)]) == 0
+    assert main([short, *common, str(part)]) == 0
+    for _ in range(2):  # in place, and again
+        assert main([long, "--from-data", str(part), *common, str(part)]) == 0
+        assert part.read_bytes() == whole.read_bytes()
+    # given again, the first run keeps its place
+    assert main([short, "--from-data", str(part), *common, str(part)]) == 0
+    assert part.read_bytes() == whole.read_bytes()
+
+
 def test_a_run_without_the_elliptical_bonus_is_named(tmp_path, capsys):
     _run(tmp_path / "kl", "kl")
     with pytest.raises(SystemExit) as raised:

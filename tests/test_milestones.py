@@ -255,6 +255,27 @@ def test_each_toggle_context_is_the_one_the_envs_own_state_gives(env_id, seed, p
     )
 
 
+def test_a_key_of_another_colour_at_a_locked_door_is_a_door_without_its_key():
+    # a yellow key (colour 4) held facing a locked blue door (colour 2), then the
+    # yellow one: a toggle does nothing at the first, unlocks the second
+    view = torch.zeros(1, 2, 7, 7, 3, dtype=torch.uint8)
+    view[0, :, 3, 6] = torch.tensor([5, 4, 0], dtype=torch.uint8)
+    view[0, 0, 3, 5] = torch.tensor([4, 2, 2], dtype=torch.uint8)
+    view[0, 1, 3, 5] = torch.tensor([4, 4, 2], dtype=torch.uint8)
+    logits = torch.zeros(1, 2, 7)
+    logits[0, 0, 5], logits[0, 1, 5] = -1.0, 1.0
+    done = torch.tensor([[False, True]])
+    steps = Episodes(view, view, torch.zeros(1, 2), done, torch.zeros(1, 2), logits)
+    read = toggle_contexts(steps)
+    toggle = logits[0].softmax(-1)[:, 5]
+    assert read["locked_door_without_its_key"] == (1, pytest.approx(float(toggle[0])))
+    assert read["key_at_its_door"] == (1, pytest.approx(float(toggle[1])))
+    # a view of another shape is refused, as for the milestones
+    flat = Episodes(view[..., 0], view[..., 0], *steps[2:])
+    with pytest.raises(ValueError, match=r"\[envs, steps, 7, 7, 3\]"):
+        toggle_contexts(flat)
+
+
 def test_toggle_contexts_score_each_envs_first_episodes_and_need_logits():
     solved = _played("MiniGrid-DoorKey-5x5-v0", seed=1)
     cut = _played("MiniGrid-DoorKey-5x5-v0", seed=1)
@@ -316,24 +337,34 @@ def test_a_runs_policy_is_played_for_each_envs_first_episodes(tmp_path, backend)
 def test_a_committed_table_plus_new_runs_is_the_table_of_all_at_once(tmp_path, capsys):
     # runs no longer on disk live on in their committed table (--from-data): new
     # runs added to it give the table all of them would give at once, a run's
-    # points of training in the order of their frames; a run given again
-    # replaces its row
-    for name, frames in [("late", 1024), ("early", 512)]:
+    # points of training in the order of their frames (not of their names); a
+    # run given again replaces its row, the same run by another spelling too
+    for name, frames in [("a_late", 1024), ("b_early", 512)]:
         _checkpoint(tmp_path / name, "MiniGrid-DoorKey-5x5-v0", frames=frames)
-    late, early = str(tmp_path / "late"), str(tmp_path / "early")
+    late, early = str(tmp_path / "a_late"), str(tmp_path / "b_early")
     common = ["--envs", "2", "--episodes", "1", "--out"]
     whole, part = tmp_path / "whole.csv", tmp_path / "part.csv"
     assert main([late, early, *common, str(whole)]) == 0
     assert pd.read_csv(whole)["frames"].tolist() == [512, 1024]
     assert main([late, *common, str(part)]) == 0
-    for _ in range(2):  # in place, and again
-        assert main([early, "--from-data", str(part), *common, str(part)]) == 0
-        assert part.read_bytes() == whole.read_bytes()
-    # an earlier table that is not this tool's, or is not there, is named
-    other = tmp_path / "other.csv"
+    for again in (early, str(tmp_path / "." / "b_early")):  # in place, and again
+        assert main([again, "--from-data", str(part), *common, str(part)]) == 0
+        assert part.read_bytes() == whole.read_bytes().replace(
+            early.encode(), again.encode()
+        )
+    # the fresh row wins over a stale one of the same run
+    stale = pd.read_csv(part)
+    stale.loc[stale["frames"] == 512, "episodes"] = 999
+    stale.to_csv(part, index=False)
+    assert main([early, "--from-data", str(part), *common, str(part)]) == 0
+    assert part.read_bytes() == whole.read_bytes()
+    # an earlier table that is not this tool's, empty, or not there is named
+    other, empty = tmp_path / "other.csv", tmp_path / "empty.csv"
     pd.DataFrame({"run": [late], "score": [0.5]}).to_csv(other, index=False)
+    empty.write_text("")
     for earlier, expected in [
         (other, "has the columns ['run', 'score']"),
+        (empty, "empty.csv is empty"),
         (tmp_path / "nowhere.csv", "nowhere.csv does not exist"),
     ]:
         with pytest.raises(SystemExit) as exit_:
@@ -341,6 +372,24 @@ def test_a_committed_table_plus_new_runs_is_the_table_of_all_at_once(tmp_path, c
         assert exit_.value.code == 2
         assert expected in capsys.readouterr().err
     assert part.read_bytes() == whole.read_bytes()  # nothing written
+
+
+def test_an_earlier_tables_labels_are_read_as_written(tmp_path):
+    # a setting named like a missing value or a number stays the string it was
+    _checkpoint(tmp_path / "run", "MiniGrid-DoorKey-5x5-v0")
+    common = ["--envs", "2", "--episodes", "1", "--out"]
+    part = tmp_path / "part.csv"
+    assert main([str(tmp_path / "run"), *common, str(part)]) == 0
+    earlier = pd.concat([pd.read_csv(part)] * 2, ignore_index=True)
+    earlier["run"], earlier["setting"] = ["runs/x", "runs/y"], ["NA", "2"]
+    earlier.to_csv(part, index=False)
+    out = tmp_path / "out.csv"
+    assert (
+        main([str(tmp_path / "run"), "--from-data", str(part), *common, str(out)]) == 0
+    )
+    assert pd.read_csv(out, dtype={"setting": str}, keep_default_na=False)[
+        "setting"
+    ].tolist() == ["2", "NA", "demo"]
 
 
 def test_toggles_writes_where_the_policy_would_toggle(tmp_path, capsys):
@@ -360,6 +409,15 @@ def test_toggles_writes_where_the_policy_would_toggle(tmp_path, capsys):
     # 2 episodes of DoorKey-5x5 (at most 250 steps each) in each of 3 envs
     assert 6 <= row["steps_anywhere"] <= 3 * 2 * 250
     assert 0.0 < row["toggle_anywhere"] < 1.0
+    # the row is toggle_contexts' on the episodes the milestones play
+    policy, config, _ = load_policy(tmp_path / "run")
+    steps = 2 * max_steps("MiniGrid-DoorKey-5x5-v0")
+    played = policy_episodes(policy, config, envs=3, steps=steps, seed=0)
+    for context, (count, probability) in toggle_contexts(played, 2).items():
+        assert row[f"steps_{context}"] == count, context
+        assert row[f"toggle_{context}"] == pytest.approx(
+            round(probability, 4), nan_ok=True
+        ), context
     # the same episodes as the milestones': where the key faces its door
     milestones = tmp_path / "milestones.csv"
     assert main([*argv[:-1], "--out", str(milestones)]) == 0

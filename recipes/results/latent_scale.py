@@ -25,6 +25,10 @@ Usage::
     python recipes/results/latent_scale.py runs/ppo_minigrid/suite_keycorridor_s3r3/+setting=vae_elliptical,seed=* \\
         runs/ppo_minigrid/suite_keycorridor_s3r3/+setting=vae_elliptical_untrained,seed=* \\
         --out docs/results/latent_scale/keycorridor_s3r3.csv
+
+``--from-data <csv>`` adds the runs to a table this command wrote earlier: runs
+no longer on disk keep their rows, a run given again (the same path) replaces its
+own, in its place.
 """
 
 from __future__ import annotations

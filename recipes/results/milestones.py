@@ -63,6 +63,11 @@ Usage::
         --out docs/results/milestones/obstructedmaze_1dlhb.csv
     python recipes/results/milestones.py "runs/ppo_minigrid/suite_obstructedmaze_2dlhb/+setting=vae_noveld,seed=0"/checkpoints/*.torchrl
     python recipes/results/milestones.py runs/ppo_minigrid/suite_obstructedmaze_1dlhb/+setting=*,seed=* --toggles
+    python recipes/results/milestones.py <new runs> --from-data <its committed csv> --out <its committed csv>
+
+``--from-data`` adds the runs to a table this command wrote earlier (of the same
+kind: milestones or ``--toggles``): runs no longer on disk keep their rows, a
+run given again (the same path) replaces its own.
 """
 
 from __future__ import annotations
@@ -178,6 +183,17 @@ def _key_at_its_door(view: torch.Tensor) -> torch.Tensor:
     return (held[..., 0] == _KEY) & _locked_door_of(front, held[..., 1])
 
 
+def _checked_views(*views: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    # the views, each MiniGrid's encoded egocentric one: [envs, steps, 7, 7, 3]
+    for view in views:
+        if view.dim() != 5 or tuple(view.shape[-3:]) != (7, 7, 3):
+            raise ValueError(
+                "views must be [envs, steps, 7, 7, 3] (MiniGrid's egocentric view, "
+                f"encoded), got {tuple(view.shape)}"
+            )
+    return views
+
+
 def _scored_episodes(done: torch.Tensor, per_env: int | None) -> list[tuple]:
     # (env, first step, last step) of each env's first ``per_env`` ended episodes
     # (all ended ones without it); an env that ended fewer is refused
@@ -219,13 +235,7 @@ def episode_milestones(episodes: Episodes, per_env: int | None = None) -> pd.Dat
          'saw_locked_door_with_key': [0, 0], 'faced_locked_door_with_key': [0, 0],
          'opened_door': [0, 1], 'unlocked_door': [0, 0], 'success': [0, 1]}
     """
-    image, after = episodes.image, episodes.next_image
-    for view in (image, after):
-        if view.dim() != 5 or tuple(view.shape[-3:]) != (7, 7, 3):
-            raise ValueError(
-                "views must be [envs, steps, 7, 7, 3] (MiniGrid's egocentric view, "
-                f"encoded), got {tuple(view.shape)}"
-            )
+    image, after = _checked_views(episodes.image, episodes.next_image)
     envs, steps = after.shape[:2]
     reward = episodes.reward.reshape(envs, steps)
     done = episodes.done.reshape(envs, steps).bool()
@@ -286,8 +296,8 @@ def toggle_contexts(
     step: the cell in front of the agent and what the agent holds.
 
     Raises:
-        ValueError: the episodes carry no ``logits``, or an env ended fewer than
-            ``per_env`` episodes.
+        ValueError: the episodes carry no ``logits``, a view is not MiniGrid's
+            encoded 7x7 one, or an env ended fewer than ``per_env`` episodes.
 
     Examples:
         >>> image = torch.zeros(1, 3, 7, 7, 3, dtype=torch.uint8)
@@ -305,9 +315,9 @@ def toggle_contexts(
          'locked_door_without_its_key': (1, 0.1429), 'closed_door': (0, nan),
          'box': (1, 0.1429)}
     """
+    (image,) = _checked_views(episodes.image)
     toggle = _toggle_probability(episodes)
     scored = _scored_steps(episodes, per_env)
-    image = episodes.image
     front = image[..., _FRONT[0], _FRONT[1], :]
     at_door = _key_at_its_door(image)
     masks = {

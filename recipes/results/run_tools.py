@@ -6,6 +6,7 @@ command refused, naming why; the table written and printed."""
 from __future__ import annotations
 
 import argparse
+import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -67,37 +68,58 @@ def load_runs(
 def merge_earlier(
     parser: argparse.ArgumentParser, table: pd.DataFrame, earlier: Path | None
 ) -> pd.DataFrame:
-    """``earlier``'s rows (when given) followed by ``table``'s; a row of
-    ``earlier`` whose ``run`` is in ``table`` is dropped (a run read again
-    replaces itself). An ``earlier`` that is missing or has other columns than
+    """``earlier``'s rows (when given), each run of ``table`` found there in its
+    place, then ``table``'s other runs. A run is its ``run`` path, normalised
+    (``runs/a`` and ``runs/./a`` are one run; a moved run is another). The
+    earlier table's labels are read as written (a setting named ``NA`` stays
+    one). An ``earlier`` that is missing, empty or has other columns than
     ``table`` ends the command with the parser's error (exit 2), naming them.
 
     Examples:
         >>> import tempfile
         >>> parser = checkpoint_parser("tool.py", "Does X.", envs=4)
         >>> old = pd.DataFrame({"run": ["runs/a", "runs/b"], "score": [0.5, 0.1]})
-        >>> new = pd.DataFrame({"run": ["runs/b", "runs/c"], "score": [0.2, 0.9]})
+        >>> new = pd.DataFrame({"run": ["runs/c", "runs/./b"], "score": [0.9, 0.2]})
         >>> with tempfile.TemporaryDirectory() as folder:
         ...     old.to_csv(f"{folder}/old.csv", index=False)
         ...     merged = merge_earlier(parser, new, Path(f"{folder}/old.csv"))
         >>> merged.to_dict("list")
-        {'run': ['runs/a', 'runs/b', 'runs/c'], 'score': [0.5, 0.2, 0.9]}
+        {'run': ['runs/a', 'runs/./b', 'runs/c'], 'score': [0.5, 0.2, 0.9]}
     """
     if earlier is None:
         return table
     if not earlier.is_file():
         parser.error(f"--from-data {earlier} does not exist")
-    old = pd.read_csv(earlier)
+    labels = [c for c in ("run", "setting") if c in table.columns]
+    try:
+        old = pd.read_csv(
+            earlier,
+            dtype=dict.fromkeys(labels, str),
+            keep_default_na=False,
+            na_values={c: [""] for c in table.columns if c not in labels},
+            float_precision="round_trip",
+        )
+    except pd.errors.EmptyDataError:
+        parser.error(f"--from-data {earlier} is empty: give a table this tool wrote")
     if list(old.columns) != list(table.columns):
         parser.error(
             f"--from-data {earlier} has the columns {list(old.columns)}; this tool "
             f"writes {list(table.columns)}: give a table it wrote"
         )
-    new_runs = set(table["run"].astype(str))
-    old = old[~old["run"].astype(str).isin(new_runs)]
-    if old.empty:
-        return table.reset_index(drop=True)
-    return pd.concat([old, table], ignore_index=True)
+
+    def run_of(paths: pd.Series) -> list[str]:
+        return [os.path.normpath(str(path)) for path in paths]
+
+    new = dict(zip(run_of(table["run"]), range(len(table))))
+    rows = [
+        table.iloc[[new[run]]] if run in new else old.iloc[[i]]
+        for i, run in enumerate(run_of(old["run"]))
+    ]
+    kept = set(run_of(old["run"]))
+    rows += [table.iloc[[i]] for run, i in new.items() if run not in kept]
+    if not rows:
+        return table
+    return pd.concat(rows, ignore_index=True)
 
 
 def write_table(table: pd.DataFrame, out: Path | None) -> None:
