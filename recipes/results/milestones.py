@@ -166,14 +166,15 @@ class Episodes(NamedTuple):
     logits: torch.Tensor | None = None
 
 
+def _locked_door(cells: torch.Tensor) -> torch.Tensor:
+    # cells ([..., 3], encoded) that are a locked door
+    return (cells[..., 0] == _DOOR) & (cells[..., 2] == _LOCKED)
+
+
 def _locked_door_of(cells: torch.Tensor, colour: torch.Tensor) -> torch.Tensor:
     # cells ([..., 3], encoded) that are a locked door of ``colour`` (a key opens
     # the door of its colour; ObstructedMaze-2Dlhb has two)
-    return (
-        (cells[..., 0] == _DOOR)
-        & (cells[..., 2] == _LOCKED)
-        & (cells[..., 1] == colour)
-    )
+    return _locked_door(cells) & (cells[..., 1] == colour)
 
 
 def _key_at_its_door(view: torch.Tensor) -> torch.Tensor:
@@ -256,8 +257,7 @@ def episode_milestones(episodes: Episodes, per_env: int | None = None) -> pd.Dat
         "saw_locked_door_with_key": (carried == _KEY) & locked.any(-1),
         "faced_locked_door_with_key": (carried == _KEY) & _key_at_its_door(after),
         "opened_door": ((seen[..., 0] == _DOOR) & (seen[..., 2] == _OPEN)).any(-1),
-        "unlocked_door": (front[..., 0] == _DOOR)
-        & (front[..., 2] == _LOCKED)
+        "unlocked_door": _locked_door(front)
         & (front_after[..., 0] == _DOOR)
         & (front_after[..., 2] == _OPEN),
         "success": success,
@@ -323,9 +323,7 @@ def toggle_contexts(
     masks = {
         "anywhere": torch.ones_like(scored),
         "key_at_its_door": at_door,
-        "locked_door_without_its_key": (front[..., 0] == _DOOR)
-        & (front[..., 2] == _LOCKED)
-        & ~at_door,
+        "locked_door_without_its_key": _locked_door(front) & ~at_door,
         "closed_door": (front[..., 0] == _DOOR) & (front[..., 2] == _CLOSED),
         "box": front[..., 0] == _BOX,
     }
