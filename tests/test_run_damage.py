@@ -261,6 +261,40 @@ def test_a_run_that_filled_the_disk_resumes_once_there_is_room(tmp_path, monkeyp
     assert (parts / DRAW).read_bytes() == (whole / DRAW).read_bytes()
 
 
+def _space_warnings(record):
+    return [str(w.message) for w in record if "checkpoint.keep=true" in str(w.message)]
+
+
+def test_kept_checkpoints_that_would_not_fit_are_warned_of_once(tmp_path, monkeypatch):
+    # 8 checkpoints of a 1024-frame run are kept; the disk has room for about 2
+    kept = tmp_path / "probe" / "checkpoints"
+    _train(tmp_path / "probe", 128, keep=True)
+    size = next(kept.iterdir()).stat().st_size
+    usage = shutil.disk_usage("/")
+    monkeypatch.setattr(
+        shutil, "disk_usage", lambda p: usage._replace(free=int(2.5 * size))
+    )
+    with pytest.warns(UserWarning) as record:
+        _train(tmp_path / "run", 1024, keep=True)
+    (message,) = _space_warnings(record)  # at the first kept checkpoint only
+    assert "the 7 still to come" in message
+    assert str(tmp_path / "run" / "checkpoints") in message
+    assert "checkpoint.keep=false" in message
+    # a warning, not an error: the run went on to its end, every checkpoint kept
+    assert len(list((tmp_path / "run" / "checkpoints").iterdir())) == 8
+
+
+def test_kept_checkpoints_that_fit_and_a_run_that_keeps_none_are_not_warned_of(
+    tmp_path, monkeypatch, recwarn
+):
+    usage = shutil.disk_usage("/")
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage._replace(free=2**40))
+    _train(tmp_path / "kept", 1024, keep=True)
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage._replace(free=0))
+    _train(tmp_path / "not_kept", 1024, keep=False)
+    assert _space_warnings(recwarn) == []
+
+
 def test_temporaries_of_a_killed_write_go_when_the_run_resumes(tmp_path):
     _train(tmp_path, 512, stop_at=128)
     leftovers = [

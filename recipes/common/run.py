@@ -40,6 +40,7 @@ import sys
 import time
 import types
 import uuid
+import warnings
 import zipfile
 from collections import deque
 from collections.abc import Mapping, Sequence
@@ -76,6 +77,7 @@ __all__ = [
     "RunDirInUse",
     "RunLock",
     "RunCheckpoint",
+    "kept_checkpoints_warning",
     "EVAL_SEED_OFFSET",
     "EpisodeStats",
     "Evaluation",
@@ -668,6 +670,43 @@ def _reader(components: Mapping[str, Any]) -> Checkpoint:
 _UNPICKLE = {"weights_only": False}
 
 
+def kept_checkpoints_warning(
+    path: str | os.PathLike, to_come: int, interval_frames: int
+) -> str | None:
+    """What to say when ``to_come`` more checkpoints of the size of the kept one
+    at ``path`` would not fit in the space free on its disk; ``None`` when they
+    fit (or the free space cannot be read).
+
+    ``checkpoint.keep=true`` keeps every periodic checkpoint, and a checkpoint
+    can be large (E3B's keeps one inverse covariance per env: 568 MB at 64
+    envs); the run says so at its first kept checkpoint rather than at a full
+    disk.
+
+    Examples:
+        >>> import tempfile, os
+        >>> path = os.path.join(tempfile.mkdtemp(), "checkpoint-000000000128.torchrl")
+        >>> with open(path, "wb") as f:
+        ...     _ = f.write(b"0" * 1024)
+        >>> kept_checkpoints_warning(path, to_come=3, interval_frames=128) is None
+        True
+    """
+    path = Path(path)
+    needed = path.stat().st_size * max(to_come, 0)
+    free = _free_bytes(path)
+    if free is None or needed <= free:
+        return None
+    size = path.stat().st_size
+    return (
+        f"checkpoint.keep=true keeps a checkpoint of {size / 2**20:.1f} MiB every "
+        f"{interval_frames} frames in {path.parent}: the {to_come} still to come "
+        f"need about {needed / 2**30:.2f} GiB, and {free / 2**30:.2f} GiB is free "
+        "there. The run goes on and, if the disk fills, stops with an error naming "
+        "the file (it resumes from its last checkpoint once there is room). Free "
+        "some space, or rerun with checkpoint.keep=false or a larger "
+        "checkpoint.interval_frames."
+    )
+
+
 class RunCheckpoint:
     """One mapping of what a run saves, used both to save and to load, written as a
     TorchRL checkpoint (:class:`torchrl.checkpoint.Checkpoint`).
@@ -738,6 +777,7 @@ class RunCheckpoint:
             if keep_dir is None
             else CheckpointRotation(keep_dir, keep_last=sys.maxsize)
         )
+        self._space_checked = False
 
     def _metadata(self) -> dict[str, Any]:
         # The frame count and config sit in the manifest, readable without
@@ -781,14 +821,24 @@ class RunCheckpoint:
                 return f"The previous checkpoint, {previous}, is left as it was."
         return "The run has no earlier checkpoint."
 
-    def save_every(self, interval_frames: int) -> None:
+    def save_every(
+        self, interval_frames: int, total_frames: int | None = None
+    ) -> None:
         """Saves when the run's :class:`RunCounters` has passed ``next_ckpt``
-        frames, and moves ``next_ckpt`` on by ``interval_frames``."""
+        frames, and moves ``next_ckpt`` on by ``interval_frames``.
+
+        With a ``keep_dir`` and ``total_frames``, the first checkpoint kept in
+        this process also warns when the checkpoints still to come, at its size,
+        would not fit in the space free there (:func:`kept_checkpoints_warning`):
+        the run goes on, and stops with a :class:`RunWriteError` if the disk
+        fills."""
         progress = self.components["progress"]
         if progress.frames >= progress.next_ckpt:
             progress.next_ckpt += interval_frames
             self.save()
             if self._kept is not None:
+                kept = Path(self._kept.directory)
+                path = kept / f"checkpoint-{progress.frames:012d}.torchrl"
                 try:
                     self._kept.save(
                         self._checkpoint,
@@ -798,12 +848,20 @@ class RunCheckpoint:
                 except Exception as err:
                     if not _is_write_error(err):
                         raise
-                    kept = Path(self._kept.directory)
                     raise _write_failure(
                         err,
-                        kept / f"checkpoint-{progress.frames:012d}.torchrl",
+                        path,
                         kept=f"The run's checkpoint, {self.path}, was written.",
                     ) from err
+                if total_frames is not None and not self._space_checked:
+                    self._space_checked = True
+                    message = kept_checkpoints_warning(
+                        path,
+                        to_come=(total_frames - progress.frames) // interval_frames,
+                        interval_frames=interval_frames,
+                    )
+                    if message is not None:
+                        warnings.warn(message, UserWarning, stacklevel=2)
 
     def load(self, path: str | os.PathLike) -> None:
         """Restores every component from the checkpoint at ``path`` (either format),
@@ -1479,7 +1537,9 @@ class TrainingRun:
         with status ``128 + signal`` (:func:`_exit_process`)."""
         frames = self.counters.frames
         self.progress_bar.update(frames - self.progress_bar.n)
-        self._checkpoint.save_every(self.cfg.checkpoint.interval_frames)
+        self._checkpoint.save_every(
+            self.cfg.checkpoint.interval_frames, self.cfg.collector.total_frames
+        )
         if not self._stop:
             return
         self._checkpoint.save()
