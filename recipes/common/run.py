@@ -821,9 +821,7 @@ class RunCheckpoint:
                 return f"The previous checkpoint, {previous}, is left as it was."
         return "The run has no earlier checkpoint."
 
-    def save_every(
-        self, interval_frames: int, total_frames: int | None = None
-    ) -> None:
+    def save_every(self, interval_frames: int, total_frames: int | None = None) -> None:
         """Saves when the run's :class:`RunCounters` has passed ``next_ckpt``
         frames, and moves ``next_ckpt`` on by ``interval_frames``.
 
