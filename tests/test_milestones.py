@@ -292,7 +292,13 @@ def test_toggle_contexts_score_each_envs_first_episodes_and_need_logits():
 
 
 def _checkpoint(
-    run_dir, env_name: str, backend: str = "gymnasium", *, frames: int = 512, **env
+    run_dir,
+    env_name: str,
+    backend: str = "gymnasium",
+    *,
+    frames: int = 512,
+    extra: dict | None = None,
+    **env,
 ):
     torch.manual_seed(0)
     model, _ = make_actor_critic(Categorical(7), intrinsic_critic=False)
@@ -301,6 +307,7 @@ def _checkpoint(
         "bonus": "none",
         "seed": 4,
         "env": {"name": env_name, "backend": backend, **env},
+        **(extra or {}),
     }
     run_dir.mkdir()
     progress = RunCounters(frames=frames)
@@ -427,6 +434,43 @@ def test_toggles_writes_where_the_policy_would_toggle(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main([*argv, "--from-data", str(milestones), "--out", str(out)])
     assert "has the columns ['run', 'setting'" in capsys.readouterr().err
+
+
+def test_label_keys_tell_apart_runs_of_one_setting(tmp_path, capsys):
+    # a sweep over a hyperparameter beside a named setting: the setting alone
+    # labels both runs "demo"; --label-keys adds the key's value
+    for coef in (0.01, 0.1):
+        _checkpoint(
+            tmp_path / f"coef_{coef}",
+            "MiniGrid-DoorKey-5x5-v0",
+            extra={"loss": {"entropy_coef": coef}},
+        )
+    runs = [str(tmp_path / "coef_0.01"), str(tmp_path / "coef_0.1")]
+    common = ["--envs", "2", "--episodes", "1", "--toggles", "--out"]
+    plain, labelled = tmp_path / "plain.csv", tmp_path / "labelled.csv"
+    assert main([*runs, *common, str(plain)]) == 0
+    assert pd.read_csv(plain)["setting"].tolist() == ["demo", "demo"]
+    keys = ["--label-keys", "loss.entropy_coef"]
+    assert main([*runs, *keys, *common, str(labelled)]) == 0
+    table = pd.read_csv(labelled)
+    assert table["setting"].tolist() == [
+        "demo,loss.entropy_coef=0.01",
+        "demo,loss.entropy_coef=0.1",
+    ]
+    # only the labels differ
+    pd.testing.assert_frame_equal(
+        table.drop(columns="setting"), pd.read_csv(plain).drop(columns="setting")
+    )
+    # a key the runs' configs lack, or a section, is refused before any playing
+    for key, expected in [
+        ("loss.gamma", "has no 'loss.gamma'"),
+        ("loss", "'loss' is a dict, not a value"),
+    ]:
+        with pytest.raises(SystemExit) as exit_:
+            main([*runs, "--label-keys", key, *common, str(tmp_path / "x.csv")])
+        assert exit_.value.code == 2
+        assert expected in capsys.readouterr().err
+    assert not (tmp_path / "x.csv").exists()
 
 
 def test_the_policy_acts_by_sampling_as_in_training(tmp_path):

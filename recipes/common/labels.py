@@ -15,6 +15,7 @@ from typing import Any
 __all__ = [
     "ENVPOOL_SUFFIX",
     "LEVEL_KEY",
+    "add_label_keys",
     "read_overrides",
     "run_labels",
     "setting_label",
@@ -147,3 +148,48 @@ def run_labels(config: Mapping, run_dir: str | os.PathLike) -> dict[str, Any]:
         "seed": config.get("seed"),
         "setting": setting_label(config, read_overrides(run_dir)),
     }
+
+
+def add_label_keys(
+    setting: str, config: Mapping, keys: Sequence[str], source: str
+) -> str:
+    """``setting`` followed by ``,KEY=value`` for each dotted key of ``keys``
+    whose entry it does not already hold, the value read from the run's resolved
+    ``config``: what ``--label-keys`` adds so that runs of one named setting
+    that differ in a hyperparameter are told apart.
+
+    Args:
+        setting (str): the run's label (:func:`setting_label`).
+        config (Mapping): the run's resolved config.
+        keys (Sequence[str]): dotted keys of single values (``env.num_envs``).
+        source (str): where ``config`` was read, named in an error.
+
+    Raises:
+        ValueError: ``config`` has no such key, or its value is a dict or a
+            list, not a single value.
+
+    Examples:
+        >>> config = {"setting": "noveld", "loss": {"entropy_coef": 0.03}}
+        >>> add_label_keys("noveld", config, ["loss.entropy_coef"], "run/config")
+        'noveld,loss.entropy_coef=0.03'
+        >>> add_label_keys("noveld,loss.entropy_coef=0.03", config,
+        ...                ["loss.entropy_coef"], "run/config")
+        'noveld,loss.entropy_coef=0.03'
+    """
+    hint = "--label-keys takes dotted keys of the runs' resolved config"
+    for key in keys:
+        value: Any = config
+        for part in key.split("."):
+            if not isinstance(value, Mapping) or part not in value:
+                raise ValueError(f"{source} has no {key!r} ({hint}, e.g. env.num_envs)")
+            value = value[part]
+        if isinstance(value, (Mapping, list, tuple)):
+            kind = "dict" if isinstance(value, Mapping) else "list"
+            raise ValueError(
+                f"{source}: {key!r} is a {kind}, not a value (--label-keys "
+                "takes keys of single values, e.g. env.num_envs)"
+            )
+        entry = f"{key}={value}"
+        if entry not in setting.split(","):  # a label of overrides may hold it
+            setting += f",{entry}"
+    return setting

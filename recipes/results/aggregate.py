@@ -144,6 +144,7 @@ from common.labels import (  # noqa: F401
     _NOT_SETTING_SECTIONS,
     ENVPOOL_SUFFIX,
     LEVEL_KEY,
+    add_label_keys,
     read_overrides,
     setting_label,
     task_label,
@@ -244,45 +245,22 @@ def _scalars_dir(run_dir: Path) -> Path | None:
     return found[0] if found else None
 
 
-_ABSENT = object()
-
-
-def _config_value(config, key: str, run_dir: Path):
-    """The value of the dotted ``key`` in a run's resolved config (an OmegaConf
-    config), which must be a single value."""
-    from omegaconf import OmegaConf
-
-    value = OmegaConf.select(config, key, default=_ABSENT)
-    if value is _ABSENT:
-        raise ValueError(
-            f"{run_dir}/config_resolved.yaml has no {key!r} (--label-keys "
-            "takes dotted keys of the runs' resolved config, e.g. env.num_envs)"
-        )
-    if OmegaConf.is_config(value):
-        kind = "dict" if OmegaConf.is_dict(value) else "list"
-        raise ValueError(
-            f"{run_dir}/config_resolved.yaml: {key!r} is a {kind}, not a value "
-            "(--label-keys takes keys of single values, e.g. env.num_envs)"
-        )
-    return value
-
-
 def _read_run(run_dir: Path, label_keys: Sequence[str] = ()) -> RunInfo:
     from omegaconf import OmegaConf
 
-    loaded = OmegaConf.load(run_dir / "config_resolved.yaml")
-    config = OmegaConf.to_container(loaded)
+    config = OmegaConf.to_container(OmegaConf.load(run_dir / "config_resolved.yaml"))
     overrides = read_overrides(run_dir)
     task = (config.get("env") or {}).get("name")
     seed = config.get("seed")
     if task is None or seed is None:
         raise ValueError(f"{run_dir}/config_resolved.yaml has no env.name or no seed")
     total_frames = (config.get("collector") or {}).get("total_frames")
-    setting = setting_label(config, overrides)
-    for key in label_keys:
-        entry = f"{key}={_config_value(loaded, key, run_dir)}"
-        if entry not in setting.split(","):  # a label of overrides may hold it
-            setting += f",{entry}"
+    setting = add_label_keys(
+        setting_label(config, overrides),
+        config,
+        label_keys,
+        f"{run_dir}/config_resolved.yaml",
+    )
     return RunInfo(
         path=run_dir,
         task=task_label(config),

@@ -68,6 +68,9 @@ Usage::
 ``--from-data`` adds the runs to a table this command wrote earlier (of the same
 kind: milestones or ``--toggles``): runs no longer on disk keep their rows, a
 run given again (the same path) replaces its own.
+``--label-keys KEY [KEY ...]`` adds each dotted config key's value to the
+runs' setting labels (``noveld,loss.entropy_coef=0.03``), as ``aggregate.py``'s
+does, for a sweep of one named setting over a hyperparameter.
 """
 
 from __future__ import annotations
@@ -478,6 +481,7 @@ def run_toggles(run_dir: str | Path, loaded, episodes: Episodes, per_env: int) -
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    from common.labels import add_label_keys
     from results.run_tools import (
         checkpoint_parser,
         load_runs,
@@ -494,17 +498,32 @@ def main(argv: Sequence[str] | None = None) -> int:
         action="store_true",
         help="write where the policy would toggle (TOGGLE_COLUMNS), not milestones",
     )
+    parser.add_argument(
+        "--label-keys",
+        nargs="+",
+        default=(),
+        metavar="KEY",
+        help="dotted config keys whose values join each run's setting label "
+        "(',KEY=value'), to tell apart runs of one setting that differ in them",
+    )
     args = parser.parse_args(argv)
     row_of, columns = (
         (run_toggles, TOGGLE_COLUMNS) if args.toggles else (run_milestones, COLUMNS)
     )
     torch.set_num_threads(1)
     loaded = load_runs(parser, args.runs, load_policy)
+    for run, (_, config, _) in loaded.items():  # before the long part: refused early
+        try:
+            add_label_keys("", config, args.label_keys, f"{run}'s checkpoint config")
+        except ValueError as err:
+            parser.error(str(err))
     rows = []
     for run, (policy, config, _) in loaded.items():
         steps = args.episodes * max_steps(config["env"]["name"])
         episodes = policy_episodes(policy, config, args.envs, steps, args.seed)
-        rows.append(row_of(run, loaded[run], episodes, args.episodes))
+        row = row_of(run, loaded[run], episodes, args.episodes)
+        row["setting"] = add_label_keys(row["setting"], config, args.label_keys, "")
+        rows.append(row)
     table = merge_earlier(
         parser, pd.DataFrame(rows, columns=list(columns)), args.from_data
     )
