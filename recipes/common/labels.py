@@ -16,6 +16,7 @@ __all__ = [
     "ENVPOOL_SUFFIX",
     "LEVEL_KEY",
     "add_label_keys",
+    "add_label_keys_argument",
     "read_overrides",
     "run_labels",
     "setting_label",
@@ -193,3 +194,27 @@ def add_label_keys(
         if entry not in setting.split(","):  # a label of overrides may hold it
             setting += f",{entry}"
     return setting
+
+
+def add_label_keys_argument(parser, note: str = "") -> None:
+    """Adds ``--label-keys KEY [KEY ...]`` (``args.label_keys``, default ``()``)
+    to the ``argparse`` parser of a tool that labels runs, the keys for
+    :func:`add_label_keys`; ``note`` ends its help.
+
+    Examples:
+        >>> import argparse
+        >>> parser = argparse.ArgumentParser()
+        >>> add_label_keys_argument(parser)
+        >>> parser.parse_args(["--label-keys", "env.num_envs"]).label_keys
+        ['env.num_envs']
+        >>> parser.parse_args([]).label_keys
+        ()
+    """
+    parser.add_argument(
+        "--label-keys",
+        nargs="+",
+        default=(),
+        metavar="KEY",
+        help="dotted config keys whose values join each run's setting label "
+        "(',KEY=value'), to tell apart runs of one setting that differ in them" + note,
+    )

@@ -145,6 +145,7 @@ from common.labels import (  # noqa: F401
     ENVPOOL_SUFFIX,
     LEVEL_KEY,
     add_label_keys,
+    add_label_keys_argument,
     read_overrides,
     setting_label,
     task_label,
@@ -1576,14 +1577,9 @@ def _parser() -> argparse.ArgumentParser:
         metavar="TASK",
         help="keep only the runs of these tasks (env ids)",
     )
-    parser.add_argument(
-        "--label-keys",
-        nargs="+",
-        default=(),
-        metavar="KEY",
-        help="dotted config keys whose values join each run's setting label "
-        "(',KEY=value'), to tell apart runs of one setting that differ in them "
-        "(--settings then names the labels with them); with run directories",
+    add_label_keys_argument(
+        parser,
+        " (--settings then names the labels with them); with run directories",
     )
     parser.add_argument("--budget", type=int, help="frames of final performance")
     parser.add_argument(

@@ -481,7 +481,7 @@ def run_toggles(run_dir: str | Path, loaded, episodes: Episodes, per_env: int) -
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from common.labels import add_label_keys
+    from common.labels import add_label_keys, add_label_keys_argument
     from results.run_tools import (
         checkpoint_parser,
         load_runs,
@@ -498,14 +498,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         action="store_true",
         help="write where the policy would toggle (TOGGLE_COLUMNS), not milestones",
     )
-    parser.add_argument(
-        "--label-keys",
-        nargs="+",
-        default=(),
-        metavar="KEY",
-        help="dotted config keys whose values join each run's setting label "
-        "(',KEY=value'), to tell apart runs of one setting that differ in them",
-    )
+    add_label_keys_argument(parser)
     args = parser.parse_args(argv)
     row_of, columns = (
         (run_toggles, TOGGLE_COLUMNS) if args.toggles else (run_milestones, COLUMNS)
