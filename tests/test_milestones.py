@@ -491,10 +491,13 @@ def test_the_policy_acts_by_sampling_as_in_training(tmp_path):
 def test_a_run_that_is_not_a_clean_minigrid_policy_is_refused(tmp_path, capsys):
     _checkpoint(tmp_path / "cheetah", "HalfCheetah-v5")
     _checkpoint(tmp_path / "noisy", "MiniGrid-DoorKey-5x5-v0", stochasticity=3)
+    # what <sweep>/* matches beside the runs: not called a damaged checkpoint
+    (tmp_path / "multirun.yaml").write_text("hydra:\n  mode: MULTIRUN\n")
     for run, expected in [
         ("cheetah", "expected a MiniGrid recipe's checkpoint"),
         ("noisy", "env.stochasticity=3"),
         ("nowhere", "nowhere"),
+        ("multirun.yaml", "multirun.yaml is not a checkpoint: expected a run"),
     ]:
         with pytest.raises(SystemExit) as exit_:
             main([str(tmp_path / run)])

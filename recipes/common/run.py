@@ -135,17 +135,33 @@ run directory (:class:`torchrl.checkpoint.CheckpointRotation`'s names,
 ``checkpoint-<frames, 12 digits>.torchrl``)."""
 
 
+# The names of checkpoint files: the run's and the kept ones, and a 0.2 run's.
+_CHECKPOINT_SUFFIXES = (".torchrl", ".pt")
+
+
 def find_checkpoint(run_dir_or_file: str | os.PathLike) -> Path:
     """The checkpoint file of a run directory (its ``checkpoint.torchrl``, or a 0.2
     run's ``checkpoint.pt``), or the file itself.
 
     Raises:
-        FileNotFoundError: a directory without either.
+        FileNotFoundError: a directory without either, or no such file.
+        ValueError: a file that is neither a TorchRL checkpoint archive nor named
+            as a checkpoint (``*.torchrl``, ``*.pt``): a sweep's
+            ``multirun.yaml`` matched by ``<sweep>/*``, say.
     """
     path = Path(run_dir_or_file)
     if not path.is_dir():
         if not path.exists():
             raise FileNotFoundError(f"no checkpoint at {path}")
+        if path.suffix not in _CHECKPOINT_SUFFIXES and not Checkpoint.is_checkpoint(
+            path
+        ):
+            raise ValueError(
+                f"{path} is not a checkpoint: expected a run directory or a "
+                "checkpoint file (*.torchrl, or a 0.2 run's checkpoint.pt). A "
+                "sweep folder's <sweep>/* also matches its multirun.yaml: name "
+                "its runs with <sweep>/+setting=* (or the runs' own folders)."
+            )
         return path
     for name in (CHECKPOINT_NAME, LEGACY_CHECKPOINT_NAME):
         if (path / name).exists():
