@@ -707,11 +707,11 @@ def kept_checkpoints_warning(
         True
     """
     path = Path(path)
-    needed = path.stat().st_size * max(to_come, 0)
+    size = path.stat().st_size
+    needed = size * max(to_come, 0)
     free = _free_bytes(path)
     if free is None or needed <= free:
         return None
-    size = path.stat().st_size
     return (
         f"checkpoint.keep=true keeps a checkpoint of {size / 2**20:.1f} MiB every "
         f"{interval_frames} frames in {path.parent}: the {to_come} still to come "
