@@ -52,6 +52,13 @@ average is recorded with each measurement.
    the raw loop (DoorKey-8x8, MultiRoom-N3S4).
    Whether a shape pays is read with its learning results (``docs/speed.rst``,
    "More envs a step"): a shape that takes more frames to learn buys no time.
+9. The suite's bonuses: the MiniGrid recipe with PPO on the hard-exploration
+   suite's DoorKey-16x16 batch (``+experiment=ppo/suite_doorkey16x16_16x512``:
+   envpool, 16 envs x 512 frames), each of the settings ``e3b`` (its 1024-wide
+   embedding), ``e3b_128``, ``noveld`` and ``vae_noveld``, in frames per CPU
+   second of its process (``time/fps_cpu``) over the plain learner
+   (``+setting=none``); goal 0.5 (a bonus at most doubles what a frame costs).
+   Under the table, ``e3b_128`` over ``e3b``.
 
 Recipes and the peer run as subprocesses (their start-up is not timed: the recipes
 time their own training loop, the peer is timed the same way). Usage::
@@ -138,6 +145,11 @@ SHAPES = {
     },
 }
 SHAPE_PIPELINE_ENVS = 64
+# item 9: the suite's experiment whose batch is measured, its settings (the first
+# is the reference), and the goal of each bonus over it
+SUITE_EXPERIMENT = "ppo/suite_doorkey16x16_16x512"
+SUITE_SETTINGS = ("none", "e3b", "e3b_128", "noveld", "vae_noveld")
+SUITE_BONUS_GOAL = 0.5
 
 __all__ = ["main"]
 
@@ -273,6 +285,24 @@ def a2c_recipe(
     load1 = os.getloadavg()[0]
     child = run_child([sys.executable, str(A2C_MAIN), *overrides])
     fps = last_scalar(run_dir, algo, metric)
+    return Sample(fps, load1, {"maxrss_bytes": child.maxrss_bytes})
+
+
+def suite_setting(setting: str, frames: int, tmp: Path) -> Sample:
+    """Item 9: the recipe's ``time/fps_cpu`` with ``+setting=setting`` on the
+    suite's DoorKey-16x16 batch (:data:`SUITE_EXPERIMENT`)."""
+    run_dir = tmp / f"suite_{setting}_{len(list(tmp.iterdir()))}"
+    overrides = [
+        f"+experiment={SUITE_EXPERIMENT}",
+        f"+setting={setting}",
+        f"collector.total_frames={frames}",
+        f"eval.interval_frames={10 * frames}",
+        f"checkpoint.interval_frames={10 * frames}",
+        f"hydra.run.dir={run_dir}",
+    ]
+    load1 = os.getloadavg()[0]
+    child = run_child([sys.executable, str(A2C_MAIN), *overrides])
+    fps = last_scalar(run_dir, "ppo", "time/fps_cpu")
     return Sample(fps, load1, {"maxrss_bytes": child.maxrss_bytes})
 
 
@@ -724,7 +754,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="a fast smoke run")
     parser.add_argument(
-        "--items", type=int, nargs="+", default=[1, 2, 3, 4, 5, 6, 7, 8]
+        "--items", type=int, nargs="+", default=[1, 2, 3, 4, 5, 6, 7, 8, 9]
     )
     parser.add_argument("--rounds", type=int, help="interleaved rounds per ratio")
     parser.add_argument("--peer-threads", type=int, default=1)
@@ -1187,6 +1217,38 @@ def main(argv: list[str] | None = None) -> dict:
                             f"{med(samples['raw gymnasium']):,.0f} steps/CPU-s",
                         )
                     )
+
+        if 9 in args.items:
+            print(
+                "[9] the suite's bonuses: PPO on DoorKey-16x16's batch (16 x 512, "
+                "envpool), each setting over the plain learner, per CPU second",
+                flush=True,
+            )
+            setups = {
+                setting: lambda s=setting: suite_setting(s, plan.recipe_frames, tmp)
+                for setting in SUITE_SETTINGS
+            }
+            samples = interleave(setups, plan.rounds)
+            details["suite_settings"] = {
+                k: {"per_cpu_s": [s.value for s in v], "load1": [s.load1 for s in v]}
+                for k, v in samples.items()
+            }
+            reference, *bonuses = SUITE_SETTINGS
+            for setting in bonuses:
+                targets.append(
+                    Target(
+                        9,
+                        f"PPO 16 x 512, +setting={setting} / {reference}",
+                        paired_ratio(samples, setting, reference),
+                        SUITE_BONUS_GOAL,
+                        note=f"{med(samples[setting]):,.0f} / "
+                        f"{med(samples[reference]):,.0f} frames/CPU-s",
+                    )
+                )
+            details.setdefault("notes", []).append(
+                "9: e3b_128 over e3b (the embedding 128 instead of 1024 wide): "
+                f"{paired_ratio(samples, 'e3b_128', 'e3b'):.2f}x"
+            )
 
     details["load_end"] = load()
     details["minutes"] = round((time.perf_counter() - started) / 60, 1)
