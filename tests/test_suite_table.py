@@ -3,7 +3,7 @@
 Task ``MiniGrid-KeyCorridorS3R3-v0@envpool`` (oracle 0.5, budget 1000 frames):
 ``vae_a`` ends every seed at 0.95 of the oracle, ``vae_u_untrained`` at 1.0,
 ``vae_b`` one seed at 0.95 and two at 0.5, ``vae_a_untrained`` (``vae_a``'s
-control) at 0.5, ``e3b`` at 0.2, ``none`` at 0, 3 seeds
+control) at 0.5, ``e3b`` at 0.2, ``e3b_128`` at 0.97, ``none`` at 0, 3 seeds
 each, and one screening seed of ``vae_s`` at 0.99, every run a straight ramp (so a seed's moving return crosses 0.9 of the
 oracle at frames ``1000 * 0.9 / final``). Task
 ``MiniGrid-DoorKey-16x16-v0@envpool`` (no oracle: scored by its success rate,
@@ -36,6 +36,7 @@ FINALS = {
     S3R3: {
         "none": [0.0] * 3,
         "e3b": [0.2] * 3,
+        "e3b_128": [0.97] * 3,
         "vae_a": [0.95] * 3,
         "vae_b": [0.95, 0.5, 0.5],
         "vae_u_untrained": [1.0] * 3,
@@ -137,6 +138,7 @@ def test_a_setting_solves_a_task_at_0_9_of_the_oracle_with_its_frames(suite):
     table = read(suite["out"], "table.csv").set_index(["task", "setting"])
     solved = table[table["solved"]].index.tolist()
     assert solved == [
+        ("KeyCorridorS3R3", "e3b_128"),
         ("KeyCorridorS3R3", "vae_a"),
         ("KeyCorridorS3R3", "vae_s"),
         ("KeyCorridorS3R3", "vae_u_untrained"),
@@ -162,6 +164,7 @@ def test_the_wide_table_puts_the_plain_learner_and_peers_first_and_published_bes
         "budget",
         "none",
         "e3b",
+        "e3b_128",
         "noveld",
         "vae_a",
         "vae_a_untrained",
@@ -199,6 +202,10 @@ def test_targets_judge_the_best_vae_setting_and_the_best_trained_one(suite):
     # every vae_a seed beats every e3b seed: probability 1 with its CI
     assert trained["vs_e3b"] == "1.00 [1.00, 1.00]"
     assert trained["vs_e3b_verdict"] == "better"
+    # E3B at its other width is a peer of its own: every seed of it beats vae_a's
+    assert trained["e3b_128"] == "0.97 [0.97, 0.97] (3)"
+    assert trained["vs_e3b_128"] == "0.00 [0.00, 0.00]"
+    assert trained["vs_e3b_128_verdict"] == "worse"
     assert trained["noveld"] == "not run"
     assert trained["vs_noveld_verdict"] == "not run"
     # whether the VAE's training earns its cost: vae_a against vae_a_untrained

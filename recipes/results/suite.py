@@ -36,7 +36,8 @@ moving return first reached 0.9 of the oracle's.
   IQM of its group among the settings with the most finished seeds, up to
   ``--min-seeds`` (a screening seed does not displace a full pass), so
   chosen on the data it is judged on; whether it solves
-  the task; and against E3B and NovelD the probability that it is better (from
+  the task; and against each peer (E3B at both widths, ``e3b`` and ``e3b_128``,
+  and NovelD) the probability that it is better (from
   the task's ``probability_of_improvement.csv``) with a verdict: ``better`` (the
   CI above 0.5), ``worse`` (below), ``level`` (the CI holds 0.5) or ``too few
   seeds`` (either side under ``--min-seeds``, default :data:`MIN_SEEDS`, or in
@@ -79,8 +80,9 @@ import pandas as pd
 
 #: The settings that are the library's VAE-based bonuses: names starting with it.
 VAE_PREFIX = "vae"
-#: The peers every VAE-based setting is judged against.
-PEERS: tuple[str, ...] = ("e3b", "noveld")
+#: The peers every VAE-based setting is judged against: E3B at the width of its own
+#: code (1024) and at the width RLeXplore runs it on MiniGrid (128), and NovelD.
+PEERS: tuple[str, ...] = ("e3b", "e3b_128", "noveld")
 #: The plain learner.
 PLAIN = "none"
 #: A VAE-based setting's control, the same bonus on a VAE that never trains, is
