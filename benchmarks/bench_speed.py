@@ -63,7 +63,7 @@ average is recorded with each measurement.
 Recipes and the peer run as subprocesses (their start-up is not timed: the recipes
 time their own training loop, the peer is timed the same way). Usage::
 
-    python benchmarks/bench_speed.py            # ~20 min on 2 busy cores
+    python benchmarks/bench_speed.py            # ~35 min on 2 busy cores
     python benchmarks/bench_speed.py --quick    # smoke run, ~4 min
     python benchmarks/bench_speed.py --items 2 4 --rounds 5
     python benchmarks/bench_speed.py --items 6 --out docs/results/bench_workers
