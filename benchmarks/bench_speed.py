@@ -256,7 +256,7 @@ class Target:
 
 # ---- items 1, 3 and 6: the A2C recipe ---------------------------------------------
 def a2c_recipe(
-    bonus: str,
+    bonus: str | None,
     env_name: str | None,
     frames: int,
     tmp: Path,
@@ -266,12 +266,13 @@ def a2c_recipe(
     metric: str = "time/fps",
 ) -> Sample:
     """The MiniGrid recipe's own ``metric`` (``time/fps``: frames per second of its
-    loop; ``time/fps_cpu``: per CPU second of its process) at the end of a run."""
+    loop; ``time/fps_cpu``: per CPU second of its process) at the end of a run.
+    ``bonus=None`` leaves the bonus to ``extra`` (a ``+setting=...``)."""
     run_dir = tmp / f"{algo}_{bonus}_{len(list(tmp.iterdir()))}"
     overrides = [
         f"algo={algo}",
         *extra,
-        f"bonus={bonus}",
+        *([] if bonus is None else [f"bonus={bonus}"]),
         f"collector.total_frames={frames}",
         f"eval.interval_frames={10 * frames}",
         f"checkpoint.interval_frames={10 * frames}",
@@ -285,24 +286,6 @@ def a2c_recipe(
     load1 = os.getloadavg()[0]
     child = run_child([sys.executable, str(A2C_MAIN), *overrides])
     fps = last_scalar(run_dir, algo, metric)
-    return Sample(fps, load1, {"maxrss_bytes": child.maxrss_bytes})
-
-
-def suite_setting(setting: str, frames: int, tmp: Path) -> Sample:
-    """Item 9: the recipe's ``time/fps_cpu`` with ``+setting=setting`` on the
-    suite's DoorKey-16x16 batch (:data:`SUITE_EXPERIMENT`)."""
-    run_dir = tmp / f"suite_{setting}_{len(list(tmp.iterdir()))}"
-    overrides = [
-        f"+experiment={SUITE_EXPERIMENT}",
-        f"+setting={setting}",
-        f"collector.total_frames={frames}",
-        f"eval.interval_frames={10 * frames}",
-        f"checkpoint.interval_frames={10 * frames}",
-        f"hydra.run.dir={run_dir}",
-    ]
-    load1 = os.getloadavg()[0]
-    child = run_child([sys.executable, str(A2C_MAIN), *overrides])
-    fps = last_scalar(run_dir, "ppo", "time/fps_cpu")
     return Sample(fps, load1, {"maxrss_bytes": child.maxrss_bytes})
 
 
@@ -1225,7 +1208,15 @@ def main(argv: list[str] | None = None) -> dict:
                 flush=True,
             )
             setups = {
-                setting: lambda s=setting: suite_setting(s, plan.recipe_frames, tmp)
+                setting: lambda s=setting: a2c_recipe(
+                    None,
+                    None,
+                    plan.recipe_frames,
+                    tmp,
+                    extra=[f"+experiment={SUITE_EXPERIMENT}", f"+setting={s}"],
+                    algo="ppo",
+                    metric="time/fps_cpu",
+                )
                 for setting in SUITE_SETTINGS
             }
             samples = interleave(setups, plan.rounds)
