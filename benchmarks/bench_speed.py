@@ -1221,7 +1221,11 @@ def main(argv: list[str] | None = None) -> dict:
             }
             samples = interleave(setups, plan.rounds)
             details["suite_settings"] = {
-                k: {"per_cpu_s": [s.value for s in v], "load1": [s.load1 for s in v]}
+                k: {
+                    "per_cpu_s": [s.value for s in v],
+                    "load1": [s.load1 for s in v],
+                    "maxrss_bytes": max(s.extra["maxrss_bytes"] for s in v),
+                }
                 for k, v in samples.items()
             }
             reference, *bonuses = SUITE_SETTINGS
@@ -1239,6 +1243,13 @@ def main(argv: list[str] | None = None) -> dict:
             details.setdefault("notes", []).append(
                 "9: e3b_128 over e3b (the embedding 128 instead of 1024 wide): "
                 f"{paired_ratio(samples, 'e3b_128', 'e3b'):.2f}x"
+            )
+            details["notes"].append(
+                "9: peak resident memory of one recipe process: "
+                + ", ".join(
+                    f"{k} {v['maxrss_bytes'] / GIB:.2f} GiB"
+                    for k, v in details["suite_settings"].items()
+                )
             )
 
     details["load_end"] = load()
