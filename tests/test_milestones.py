@@ -97,6 +97,45 @@ def test_a_key_brought_to_the_locked_door_and_not_used_is_told_from_one_kept_awa
     assert reached[2] == {"carried_key", *_KEY_AT_DOOR, "opened_door", "unlocked_door"}
 
 
+def test_a_turn_from_a_locked_door_to_an_open_one_is_not_an_unlock():
+    # A cell between two doors (ObstructedMaze-2Dlhb has them): the agent faces
+    # a locked door, an open one to its right. Turning right puts the open door
+    # in front of it; only a toggle that opens the door in front is an unlock.
+    from minigrid.core.actions import Actions
+    from minigrid.core.constants import DIR_TO_VEC
+    from minigrid.core.world_object import Door, Key
+
+    def turn_then_toggle(with_key: bool) -> list[set[str]]:
+        env = gym.make("MiniGrid-Empty-5x5-v0")
+        env.reset(seed=0)
+        grid = env.unwrapped
+        grid.grid.set(*grid.front_pos, Door("blue", is_locked=True))
+        right = grid.agent_pos + DIR_TO_VEC[(grid.agent_dir + 1) % 4]
+        grid.grid.set(*right, Door("red", is_open=True))
+        grid.carrying = Key("blue") if with_key else None
+        rows = []
+        for action in (Actions.right, Actions.left, Actions.toggle):
+            before = torch.as_tensor(grid.gen_obs()["image"])
+            obs, *_ = env.step(action)
+            rows.append((before, torch.as_tensor(obs["image"]), int(action)))
+        env.close()
+        reached = []
+        for n in (1, 3):  # the turn alone; turned back and toggled
+            steps = Episodes(
+                torch.stack([r[0] for r in rows[:n]])[None],
+                torch.stack([r[1] for r in rows[:n]])[None],
+                torch.zeros(1, n),
+                torch.tensor([[False] * (n - 1) + [True]]),
+                torch.tensor([[r[2] for r in rows[:n]]]),
+            )
+            row = episode_milestones(steps).iloc[0]
+            reached.append(row["unlocked_door"])
+        return reached
+
+    assert turn_then_toggle(with_key=False) == [False, False]
+    assert turn_then_toggle(with_key=True) == [False, True]
+
+
 def test_a_key_counts_only_at_a_locked_door_of_its_colour():
     # one step: the agent holds a yellow key (colour 4) facing a locked door
     # (state 2) of colour 4, then of colour 1 (ObstructedMaze-2Dlhb has a door

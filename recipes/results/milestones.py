@@ -29,8 +29,8 @@ writes one row per run:
 - ``opened_door``: the share in which an open door came into view (the suite's
   tasks start with every door closed or locked, so it is one the agent opened;
   on KeyCorridor, MultiRoom and ObstructedMaze-2Dlhb some doors are unlocked);
-- ``unlocked_door``: the share in which the agent unlocked a door (the door in
-  front of it locked before a step, open after it);
+- ``unlocked_door``: the share in which the agent unlocked a door (a toggle
+  with a locked door in front of it, open after it);
 - ``success``: the share that ended with a positive reward (the task solved);
 
 and, beside them, ``toggle_prob_at_door``: the policy's probability of the toggle
@@ -260,7 +260,10 @@ def episode_milestones(episodes: Episodes, per_env: int | None = None) -> pd.Dat
         "saw_locked_door_with_key": (carried == _KEY) & locked.any(-1),
         "faced_locked_door_with_key": (carried == _KEY) & _key_at_its_door(after),
         "opened_door": ((seen[..., 0] == _DOOR) & (seen[..., 2] == _OPEN)).any(-1),
+        # a toggle: a turn from a locked door to an open one (a cell between two
+        # doors, as ObstructedMaze-2Dlhb has) changes the cell in front as well
         "unlocked_door": _locked_door(front)
+        & (episodes.action == int(Actions.toggle))
         & (front_after[..., 0] == _DOOR)
         & (front_after[..., 2] == _OPEN),
         "success": success,
