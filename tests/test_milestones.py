@@ -105,7 +105,7 @@ def test_a_turn_from_a_locked_door_to_an_open_one_is_not_an_unlock():
     from minigrid.core.constants import DIR_TO_VEC
     from minigrid.core.world_object import Door, Key
 
-    def turn_then_toggle(with_key: bool) -> list[set[str]]:
+    def turn_then_toggle(with_key: bool) -> list[bool]:
         env = gym.make("MiniGrid-Empty-5x5-v0")
         env.reset(seed=0)
         grid = env.unwrapped

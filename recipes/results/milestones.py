@@ -260,8 +260,9 @@ def episode_milestones(episodes: Episodes, per_env: int | None = None) -> pd.Dat
         "saw_locked_door_with_key": (carried == _KEY) & locked.any(-1),
         "faced_locked_door_with_key": (carried == _KEY) & _key_at_its_door(after),
         "opened_door": ((seen[..., 0] == _DOOR) & (seen[..., 2] == _OPEN)).any(-1),
-        # a toggle: a turn from a locked door to an open one (a cell between two
-        # doors, as ObstructedMaze-2Dlhb has) changes the cell in front as well
+        # the toggle action only: a turn from a locked door to an open one (in a
+        # cell between two doors, as ObstructedMaze-2Dlhb has) also changes the
+        # cell in front from locked to open
         "unlocked_door": _locked_door(front)
         & (episodes.action == int(Actions.toggle))
         & (front_after[..., 0] == _DOOR)
