@@ -105,10 +105,82 @@ def test_e3b_bonus_falls_on_repeats_and_restarts_with_the_episode():
     td = revisiting_batch()
     b = transform(td)["next", "intrinsic_reward"][..., 0]
     torch.testing.assert_close(b, reference_episodic_bonus(transform, td)[..., 0])
+    phi_a = model.embed(torch.zeros(3)).double()
     phi_b = model.embed(torch.ones(3)).double()
-    assert b[0, 0].item() == pytest.approx(float(phi_b @ phi_b / 0.1), rel=1e-5)
+    # The episode's first state, a, is in C when b is paid (E3B's code).
+    cov = 0.1 * torch.eye(16, dtype=torch.float64) + torch.outer(phi_a, phi_a)
+    first = float(phi_b @ torch.linalg.solve(cov, phi_b))
+    assert b[0, 0].item() == pytest.approx(first, rel=1e-5)
     assert b[0, 2] < b[0, 0]  # b again in the same episode
     torch.testing.assert_close(b[0, 4], b[0, 0])  # a new episode: novel again
+    # Without it, C starts from ridge * I.
+    empty = E3BTransform(model, ridge=0.1, start_in_memory=False)
+    b = empty(revisiting_batch())["next", "intrinsic_reward"][..., 0]
+    assert b[0, 0].item() == pytest.approx(float(phi_b @ phi_b / 0.1), rel=1e-5)
+
+
+def official_e3b_bonuses(embed, observations, starts, ridge):
+    """E3B's own act loop (facebookresearch/e3b, minihack/torchbeast/src/utils.py
+    l.373-379, 392, 425-442, 495-500), written independently of the library:
+    at an episode's start the inverse restarts at ``I / ridge``; every state
+    ``s_t`` the agent acts from is embedded, its bonus read from the inverse,
+    then joins it; the bonus of an episode's first step is set to 0. Returns
+    the bonus of each ``s_t`` (``[envs, T]``), which that loop writes beside
+    the transition leaving ``s_t``."""
+    envs, steps = starts.shape
+    out = torch.zeros(envs, steps, dtype=torch.float64)
+    for env in range(envs):
+        for t in range(steps):
+            if starts[env, t]:  # env_output['done']: cov_inverse reset, step = 0
+                dim = embed(observations[env, t]).shape[-1]
+                cov_inverse = torch.eye(dim, dtype=torch.float64) / ridge
+                step = 0
+            h = embed(observations[env, t]).double()
+            u = torch.mv(cov_inverse, h)
+            b = torch.dot(h, u).item()
+            cov_inverse = cov_inverse - torch.outer(u, u) / (1.0 + b)
+            out[env, t] = 0.0 if step == 0 else b
+            step += 1
+    return out
+
+
+@pytest.mark.parametrize("kind", ["e3b", "vae_elliptical"])
+def test_the_episode_start_is_e3b_official_recursion_on_both_paths(kind):
+    # Our transition s_t -> s_{t+1} pays s_{t+1}'s bonus: E3B's loop pays the
+    # same number beside the next transition, the one leaving s_{t+1}.
+    from torchrl_surprise import StateVAE
+    from torchrl_surprise.transforms import VAEEllipticalTransform
+
+    torch.manual_seed(0)
+    if kind == "e3b":
+        model = E3BModel.for_vector(OBS_DIM, ACTION_DIM, embedding_dim=8, hidden_dim=16)
+        transform = E3BTransform(model, ridge=0.1)
+        embed = model.embed
+    else:
+        vae = StateVAE.for_vector(OBS_DIM, latent_dim=8, hidden_dim=16)
+        transform = VAEEllipticalTransform(vae, ridge=0.1, start_in_memory=True)
+
+        def embed(obs):
+            return vae.posterior(obs)[0]
+
+    env = episodic_env(transform, max_steps=4, num_envs=2)
+    rollout = env.rollout(13, break_when_any_done=False)
+    done = rollout["next", "done"][..., 0]
+    starts = torch.zeros_like(done)
+    starts[:, 0] = True
+    starts[:, 1:] = done[:, :-1]
+    with torch.no_grad():
+        official = official_e3b_bonuses(embed, rollout["observation"], starts, 0.1)
+    ours = rollout["next", "intrinsic_reward"][..., 0].double()
+    inside = ~done[:, :-1]  # s_{t+1} is the next state acted from
+    assert inside.sum() > 10 and (~inside).sum() >= 4
+    torch.testing.assert_close(
+        ours[:, :-1][inside], official[:, 1:][inside], rtol=1e-5, atol=1e-6
+    )
+    assert (official[starts] == 0).all()
+    transform.reset_episodes()
+    batch = transform(timed(rollout.clone()))["next", "intrinsic_reward"][..., 0]
+    torch.testing.assert_close(batch.double(), ours)
 
 
 def test_noveld_pays_first_visits_only_and_restarts_with_the_episode():

@@ -153,15 +153,19 @@ def reference_episodic_bonus(transform, td: TensorDict) -> torch.Tensor:
     nxt = [flat["next", key] for key in transform.in_keys]
     if isinstance(transform, E3BTransform):
         phi = transform.model.embed(*nxt).double()
+        # An episode's first state s_0 joins C before s_1's bonus (E3B's code).
+        start = transform.model.embed(*[flat[key] for key in transform.in_keys])
+        start = start.double() * transform.start_in_memory
         eye = torch.eye(phi.shape[-1], dtype=torch.float64)
         for env in range(flat.shape[0]):
-            cov = transform.ridge * eye
+            cov = transform.ridge * eye + torch.outer(start[env, 0], start[env, 0])
             for t in range(flat.shape[1]):
                 u = phi[env, t]
                 bonus[env, t] = u @ torch.linalg.solve(cov, u)
                 cov = cov + torch.outer(u, u)
-                if done[env, t]:
-                    cov = transform.ridge * eye
+                if done[env, t] and t + 1 < flat.shape[1]:
+                    s0 = start[env, t + 1]
+                    cov = transform.ridge * eye + torch.outer(s0, s0)
     else:
 
         def novelty(obs):

@@ -298,6 +298,9 @@ class MiniGridLossConfig:
     minibatch_size: int = required(POSITIVE)
     """PPO's minibatch, in transitions; > 0 and at most env.num_envs *
     collector.frames_per_env."""
+    reward_clip: float | None = required(POSITIVE)
+    """Bound on the reward the critic learns from (the mixed reward with one
+    critic), [-reward_clip, reward_clip]; > 0, or null for none."""
 
 
 @dataclass
@@ -314,6 +317,8 @@ class MiniGridVAEConfig(VAEConfig):
     """elliptical: none, or kl to multiply the episodic bonus by the KL."""
     unit_latent: bool = required()
     """elliptical: the episodic term reads the posterior mean at unit length."""
+    start_in_memory: bool = required()
+    """elliptical: an episode's first state joins C before the first bonus."""
     alpha: float = required(NON_NEGATIVE)
     """noveld: weight of novelty(s) in max(novelty(s') - alpha novelty(s), 0); >= 0."""
     novelty: str = required(one_of(NOVELD_NOVELTIES))
@@ -355,6 +360,8 @@ class E3BConfig:
     """Width of the inverse-dynamics head; > 0."""
     ridge: float = required(POSITIVE)
     """The ridge lambda of C = lambda I + sum phi phi^T; > 0."""
+    start_in_memory: bool = required()
+    """An episode's first state joins C before the first bonus (E3B's code)."""
 
 
 @dataclass

@@ -101,7 +101,7 @@ def vae_variant_kwargs(variant: str, vae_cfg) -> dict:
 
     Examples:
         >>> vae_variant_kwargs("elliptical", {"ridge": 0.5})
-        {'ridge': 0.5, 'global_bonus': 'none', 'unit_latent': False}
+        {'ridge': 0.5, 'global_bonus': 'none', 'unit_latent': False, 'start_in_memory': False}
         >>> vae_variant_kwargs("noveld", {"alpha": 0.25, "novelty": "kl"})
         {'alpha': 0.25, 'novelty': 'kl'}
         >>> vae_variant_kwargs("kl", {"ridge": 0.5})
@@ -118,6 +118,7 @@ def vae_variant_kwargs(variant: str, vae_cfg) -> dict:
         "ridge": vae_cfg.get("ridge", 0.1),
         "global_bonus": vae_cfg.get("global_bonus", "none"),
         "unit_latent": vae_cfg.get("unit_latent", False),
+        "start_in_memory": vae_cfg.get("start_in_memory", False),
     }
 
 
@@ -257,7 +258,12 @@ def make_bonus(cfg, action_spec, bonus: str):
             embedding_dim=icfg.e3b.embedding_dim,
             hidden_dim=icfg.e3b.hidden_dim,
         )
-        transform = E3BTransform(model, ridge=icfg.e3b.ridge, **common)
+        transform = E3BTransform(
+            model,
+            ridge=icfg.e3b.ridge,
+            start_in_memory=icfg.e3b.start_in_memory,
+            **common,
+        )
         loss = InverseDynamicsLoss(model)
     elif bonus == "noveld":
         rnd = RNDModel.for_minigrid(

@@ -142,6 +142,7 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         # fused: the same Adam update in one kernel (faster VAE steps on CPU)
         bonus_optim = torch.optim.Adam(bonus_params, lr=cfg.intrinsic.lr, fused=True)
     buffer = utils.make_minibatch_buffer(cfg, device)
+    reward_clip = utils.make_reward_clip(cfg)
 
     stats = EpisodeStats(window=cfg.logger.episode_window)
     progress = RunCounters(
@@ -208,6 +209,8 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         with torch.no_grad():
             if bonus_transform is not None:
                 data = bonus_transform(data)
+            if reward_clip is not None:
+                data = reward_clip(data)
             # Step 3: advantages and value targets, once: GAE on the (mixed)
             # reward, or the two streams (TwoStreamAdvantage).
             data = advantage(data)

@@ -10,6 +10,7 @@ from tensordict.nn import InteractionType, TensorDictModuleBase
 from tensordict.nn.probabilistic import interaction_type
 from torch.distributions import Categorical
 from torchrl.data import LazyTensorStorage, ReplayBuffer, SamplerWithoutReplacement
+from torchrl.envs.transforms import RewardClipping
 from torchrl.objectives import A2CLoss, ClipPPOLoss
 
 from common.minigrid import make_advantage
@@ -20,6 +21,7 @@ __all__ = [
     "make_loss",
     "make_minibatch_buffer",
     "make_optimizer",
+    "make_reward_clip",
     "minibatches",
     "resolve_device",
     "standardize_advantage",
@@ -70,6 +72,30 @@ def resolve_device(name: str) -> torch.device:
         raise ValueError(f"device must be one of 'cpu', 'cuda', 'auto', got {name!r}.")
     return torch.device(name)
 
+
+def make_reward_clip(cfg) -> RewardClipping | None:
+    """TorchRL's ``RewardClipping`` of a batch's learner reward to
+    ``[-loss.reward_clip, loss.reward_clip]`` (``None`` without it).
+
+    It clips ``("next", "reward")``, what the (one) critic and GAE read: with one
+    critic, the extrinsic reward plus the bonus, as E3B's code clips its total
+    reward; the bonus transforms keep the task reward under
+    ``"extrinsic_reward"``.
+
+    Examples:
+        >>> from omegaconf import OmegaConf
+        >>> make_reward_clip(OmegaConf.create({"loss": {"reward_clip": None}})) is None
+        True
+        >>> clip = make_reward_clip(OmegaConf.create({"loss": {"reward_clip": 1.0}}))
+        >>> from tensordict import TensorDict
+        >>> td = TensorDict({"next": {"reward": torch.tensor([[2.5], [0.5]])}}, [2])
+        >>> clip(td)["next", "reward"].flatten()
+        tensor([1.0000, 0.5000])
+    """
+    bound = cfg.loss.get("reward_clip")
+    if bound is None:
+        return None
+    return RewardClipping(-bound, bound, in_keys=[("next", "reward")])
 
 def make_loss(cfg, model, intrinsic_value, bonus_transform):
     """TorchRL's A2CLoss or ClipPPOLoss, and the advantage (GAE, or two streams).

@@ -10,7 +10,11 @@ from tensordict.utils import NestedKey, unravel_key
 
 from torchrl_surprise.modules.e3b import E3BModel
 from torchrl_surprise.transforms.base import IntrinsicRewardTransform
-from torchrl_surprise.transforms.episodic import EllipticalEpisodicMemory
+from torchrl_surprise.transforms.episodic import (
+    EllipticalEpisodicMemory,
+    checked_flag,
+    embed_where,
+)
 
 __all__ = ["E3BTransform"]
 
@@ -31,6 +35,12 @@ class E3BTransform(IntrinsicRewardTransform):
     far, in what the agent controls, earns a high bonus; a state close to many
     of them a small one. ``ridge=0.1`` is the paper's.
 
+    As in E3B's code, an episode's first state ``s_0`` joins ``C`` before
+    ``s_1``'s bonus and earns none (``start_in_memory=True``): ``s_1`` then
+    pays ``phi(s_1)^T (ridge I + phi(s_0) phi(s_0)^T)^{-1} phi(s_1)``, not
+    ``|phi(s_1)|^2 / ridge``, which grows with the embedding's scale and would
+    put the bonus at every episode's start.
+
     The memory is an
     :class:`~torchrl_surprise.transforms.EllipticalEpisodicMemory` per env,
     the one :class:`~torchrl_surprise.transforms.VAEEllipticalTransform` uses,
@@ -48,6 +58,9 @@ class E3BTransform(IntrinsicRewardTransform):
 
     Keyword Args:
         ridge (float): ``lambda`` of ``C``'s ``lambda * I`` (E3B: 0.1).
+        start_in_memory (bool): an episode's first state joins ``C`` before
+            the first bonus (E3B's code); ``False``: ``C`` starts from
+            ``ridge * I``.
         done_key (NestedKey): the ``"next"`` entry that ends an episode.
         **kwargs: see :class:`~torchrl_surprise.transforms.IntrinsicRewardTransform`.
 
@@ -75,6 +88,7 @@ class E3BTransform(IntrinsicRewardTransform):
         in_keys: Sequence[NestedKey] | None = None,
         *,
         ridge: float = 0.1,
+        start_in_memory: bool = True,
         done_key: NestedKey = "done",
         **kwargs,
     ):
@@ -84,6 +98,7 @@ class E3BTransform(IntrinsicRewardTransform):
         super().__init__(in_keys, **kwargs)
         self.model = model
         self.memory = memory
+        self.start_in_memory = checked_flag("start_in_memory", start_in_memory)
         self.done_key = unravel_key(done_key)
 
     @property
@@ -103,13 +118,24 @@ class E3BTransform(IntrinsicRewardTransform):
         observations = self._observations(next_tensordict, "the 'next' tensordict")
         return self.model.embed(*observations)
 
+    def _starts(self, tensordict: TensorDictBase, mask: torch.Tensor):
+        """The embeddings of the states that begin an episode (``mask``), or
+        ``None`` when they do not join the memory."""
+        if not self.start_in_memory:
+            return None
+        observations = self._observations(tensordict, "the root tensordict")
+        return embed_where(
+            self.model.embed, observations, mask, self.model.embedding_dim
+        )
+
     def _compute_bonus(
         self, tensordict: TensorDictBase, next_tensordict: TensorDictBase
     ) -> torch.Tensor:
         # The env path: one step of every env.
         done = self._episode_ends(next_tensordict, self.done_key)
         phi = self._embedding(next_tensordict)
-        return self.memory.step(phi, done).to(phi.dtype)
+        start = self._starts(tensordict, self.memory.pending(phi.shape[:-1]))
+        return self.memory.step(phi, done, start).to(phi.dtype)
 
     def _compute_batch_bonus(
         self,
@@ -120,4 +146,7 @@ class E3BTransform(IntrinsicRewardTransform):
         time_dim = self._require_time_dim(time_dim)
         done = self._episode_ends(next_tensordict, self.done_key)
         phi = self._embedding(next_tensordict)
-        return self.memory.walk(phi, done, time_dim).to(phi.dtype)
+        if done is None:
+            done = torch.zeros(phi.shape[:-1], dtype=torch.bool, device=phi.device)
+        start = self._starts(tensordict, self.memory.pending_starts(done, time_dim))
+        return self.memory.walk(phi, done, time_dim, start).to(phi.dtype)

@@ -18,14 +18,63 @@ dimension of a collected batch (:meth:`walk`, ``forward``).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import torch
 from tensordict import TensorDictBase
 from torch import nn
 
-__all__ = ["EllipticalEpisodicMemory", "EpisodicMemory", "EpisodicVisits"]
+__all__ = [
+    "EllipticalEpisodicMemory",
+    "EpisodicMemory",
+    "EpisodicVisits",
+]
+
+
+def checked_flag(name: str, value) -> bool:
+    """``value`` if it is a bool, else a ``TypeError`` naming ``name``."""
+    if not isinstance(value, bool):
+        raise TypeError(
+            f"{name} must be a bool, got {value!r} ({type(value).__name__})."
+        )
+    return value
+
+
+def embed_where(
+    embed: Callable[..., torch.Tensor],
+    observations: Sequence[torch.Tensor],
+    mask: torch.Tensor,
+    dim: int,
+) -> torch.Tensor:
+    """``embed`` of the observations where ``mask`` is set, zeros elsewhere.
+
+    For the states that begin an episode (a few in a batch): only those are
+    embedded.
+
+    Args:
+        embed (callable): ``[n, ...]`` observations (one tensor per key) to
+            ``[n, dim]`` embeddings.
+        observations (sequence of torch.Tensor): ``[*batch, ...]`` each.
+        mask (torch.Tensor): bool ``[*batch]``.
+        dim (int): the embeddings' size.
+
+    Returns:
+        ``[*batch, dim]``, in the embeddings' dtype.
+
+    Examples:
+        >>> import torch
+        >>> obs = torch.arange(6.0).reshape(3, 2)
+        >>> embed_where(lambda o: o * 10, [obs], torch.tensor([False, True, False]), 2)
+        tensor([[ 0.,  0.],
+                [20., 30.],
+                [ 0.,  0.]])
+    """
+    with torch.no_grad():
+        chosen = embed(*(obs[mask] for obs in observations))
+    out = chosen.new_zeros(*mask.shape, dim)
+    out[mask] = chosen
+    return out
 
 
 class EpisodicMemory(nn.Module):
@@ -95,6 +144,10 @@ class EllipticalEpisodicMemory(EpisodicMemory):
         self.dim = int(dim)
         self.ridge = float(ridge)
         self.register_buffer("inv_cov", torch.zeros(0, dtype=torch.float64))
+        # The envs whose episode has no state in ``C`` yet (restarted, or never
+        # followed): there an episode's first state may join ``C`` before the
+        # bonus of its next one (``start`` of :meth:`step` and :meth:`walk`).
+        self.register_buffer("awaiting", torch.zeros(0, dtype=torch.bool))
 
     @property
     def env_shape(self) -> torch.Size | None:
@@ -104,6 +157,7 @@ class EllipticalEpisodicMemory(EpisodicMemory):
     def reset(self) -> None:
         """Forgets every episode in progress."""
         self.inv_cov = torch.zeros(0, dtype=torch.float64, device=self.inv_cov.device)
+        self.awaiting = torch.zeros(0, dtype=torch.bool, device=self.inv_cov.device)
 
     def _fresh(self, env_shape, device) -> torch.Tensor:
         eye = torch.eye(self.dim, dtype=torch.float64, device=device)
@@ -112,6 +166,7 @@ class EllipticalEpisodicMemory(EpisodicMemory):
     def _memory(self, env_shape, device) -> torch.Tensor:
         if self.env_shape is None:
             self.inv_cov = self._fresh(env_shape, device)
+            self.awaiting = torch.ones(env_shape, dtype=torch.bool, device=device)
         elif self.env_shape != env_shape:
             raise ValueError(
                 f"{type(self).__name__}: it follows episodes of "
@@ -124,11 +179,13 @@ class EllipticalEpisodicMemory(EpisodicMemory):
         """The envs where ``mask`` (shape :attr:`env_shape`) is set start afresh."""
         if self.env_shape is None or not mask.any():
             return
+        mask = mask.reshape(self.env_shape)
         self.inv_cov = torch.where(
-            mask.reshape(self.env_shape)[..., None, None],
+            mask[..., None, None],
             self._fresh(self.env_shape, self.inv_cov.device),
             self.inv_cov,
         )
+        self.awaiting = self.awaiting | mask
 
     def _check(self, phi: torch.Tensor) -> None:
         if phi.shape[-1:] != (self.dim,):
@@ -137,19 +194,75 @@ class EllipticalEpisodicMemory(EpisodicMemory):
                 f"got shape {tuple(phi.shape)}."
             )
 
-    def step(self, phi: torch.Tensor, done: torch.Tensor | None = None) -> torch.Tensor:
+    def pending(self, env_shape: torch.Size) -> torch.Tensor:
+        """The envs (``[*env_shape]``) whose episode has no state in ``C`` yet.
+
+        Every env before the first call and after :meth:`reset`; an env after
+        its episode ends (:meth:`restart`, or ``done`` in :meth:`step` and
+        :meth:`walk`).
+        """
+        if self.env_shape is None or self.env_shape != env_shape:
+            return torch.ones(env_shape, dtype=torch.bool, device=self.inv_cov.device)
+        return self.awaiting.clone()
+
+    def pending_starts(self, done: torch.Tensor, time_dim: int) -> torch.Tensor:
+        """Where the states ``s_t`` of a time-ordered batch begin an episode.
+
+        ``done`` is ``[*batch]``; ``s_t`` begins one where the env's memory
+        awaits its first state (``t = 0``, :meth:`pending`) or where the
+        transition before ended one. Those are the places :meth:`walk`'s
+        ``start`` is read.
+        """
+        moved = done.movedim(time_dim, -1)
+        starts = torch.zeros_like(moved)
+        starts[..., 0] = self.pending(moved.shape[:-1])
+        starts[..., 1:] = moved[..., :-1]
+        return starts.movedim(-1, time_dim)
+
+    def _take_in(
+        self, inv: torch.Tensor, start: torch.Tensor, mask: torch.Tensor
+    ) -> torch.Tensor:
+        """``inv`` (``[envs, dim, dim]``) with ``start`` (``[envs, dim]``) joined
+        where ``mask`` (``[envs]``) is set."""
+        if not mask.any():
+            return inv
+        u = start[mask].to(torch.float64)
+        rows = inv[mask]
+        inv_u = (rows @ u.unsqueeze(-1)).squeeze(-1)
+        denominator = (1.0 + (u * inv_u).sum(-1))[..., None, None]
+        inv = inv.clone()
+        inv[mask] = rows - inv_u.unsqueeze(-1) * inv_u.unsqueeze(-2) / denominator
+        return inv
+
+    def step(
+        self,
+        phi: torch.Tensor,
+        done: torch.Tensor | None = None,
+        start: torch.Tensor | None = None,
+    ) -> torch.Tensor:
         """The bonus of one step of every env, then ``C += phi phi^T``.
 
         Args:
             phi (torch.Tensor): ``[*envs, dim]``.
             done (torch.Tensor, optional): ``[*envs]``; where set, the env
                 starts a new episode after this step.
+            start (torch.Tensor, optional): ``[*envs, dim]``, the embedding of
+                the state each env steps from; where the env's episode has no
+                state in ``C`` yet (:meth:`pending`) it joins ``C`` first, and
+                earns no bonus (E3B's episode start). Read nowhere else.
 
         Returns:
             The bonus, ``[*envs]``, in float64.
         """
         self._check(phi)
         inv = self._memory(phi.shape[:-1], phi.device)
+        if start is not None:
+            self._check(start)
+            flat = inv.reshape(-1, self.dim, self.dim)
+            flat = self._take_in(
+                flat, start.reshape(-1, self.dim), self.awaiting.reshape(-1)
+            )
+            inv = flat.reshape(inv.shape)
         u = phi.to(torch.float64)
         inv_u = (inv @ u.unsqueeze(-1)).squeeze(-1)
         bonus = (u * inv_u).sum(-1)
@@ -158,12 +271,17 @@ class EllipticalEpisodicMemory(EpisodicMemory):
             inv
             - inv_u.unsqueeze(-1) * inv_u.unsqueeze(-2) / (1.0 + bonus)[..., None, None]
         )
+        self.awaiting = torch.zeros_like(self.awaiting)
         if done is not None:
             self.restart(done)
         return bonus
 
     def walk(
-        self, phi: torch.Tensor, done: torch.Tensor | None, time_dim: int
+        self,
+        phi: torch.Tensor,
+        done: torch.Tensor | None,
+        time_dim: int,
+        start: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """The bonus of every step of a time-ordered batch, walking ``time_dim``.
 
@@ -171,16 +289,22 @@ class EllipticalEpisodicMemory(EpisodicMemory):
         in turn, but computed :attr:`chunk` steps at a time without a Python
         loop over them: with ``M = I + G``, ``G[i, j] = phi_i^T A phi_j`` for
         steps ``i, j`` of one episode (``A`` the inverse that episode starts
-        from) and 0 across episodes, the bonus of step ``t`` is
-        ``L[t, t]^2 - 1`` for the Cholesky factor ``L`` of ``M`` (the Schur
-        complement of ``M``'s leading block is ``1 + phi_t^T C_t^{-1} phi_t``,
-        by Woodbury's identity), and the memory after the chunk is a Woodbury
-        update of ``A`` with the last episode's steps.
+        from: the memory, or ``(ridge * I + p p^T)^{-1}`` for an episode that
+        starts in the chunk from a state ``p``) and 0 across episodes, the
+        bonus of step ``t`` is ``L[t, t]^2 - 1`` for the Cholesky factor ``L``
+        of ``M`` (the Schur complement of ``M``'s leading block is
+        ``1 + phi_t^T C_t^{-1} phi_t``, by Woodbury's identity), and the memory
+        after the chunk is a Woodbury update of ``A`` with the last episode's
+        steps.
 
         Args:
             phi (torch.Tensor): ``[*batch, dim]``, ``batch`` holding ``time_dim``.
             done (torch.Tensor, optional): ``[*batch]``.
             time_dim (int): the time dimension of ``batch`` (non-negative).
+            start (torch.Tensor, optional): ``[*batch, dim]``, the embedding of
+                the state each step leaves; read where it begins an episode
+                (:meth:`pending_starts`), which joins ``C`` first and earns no
+                bonus, as in :meth:`step`.
 
         Returns:
             The bonus, ``[*batch]``, in float64.
@@ -199,12 +323,24 @@ class EllipticalEpisodicMemory(EpisodicMemory):
         inv = self._memory(env_shape, phi.device).reshape(-1, self.dim, self.dim)
         phi = phi.reshape(-1, steps, self.dim).to(torch.float64)
         done = done.reshape(-1, steps)
+        if start is not None:
+            self._check(start)
+            start = start.movedim(time_dim, -2).reshape(-1, steps, self.dim)
+            start = start.to(torch.float64)
+        awaiting = self.awaiting.reshape(-1)
         bonuses = []
-        for start in range(0, steps, self.chunk):
-            stop = start + self.chunk
-            bonus, inv = self._walk_chunk(inv, phi[:, start:stop], done[:, start:stop])
+        for first in range(0, steps, self.chunk):
+            stop = first + self.chunk
+            if start is not None:
+                inv = self._take_in(inv, start[:, first], awaiting)
+            chunk_start = None if start is None else start[:, first:stop]
+            bonus, inv = self._walk_chunk(
+                inv, phi[:, first:stop], done[:, first:stop], chunk_start
+            )
             bonuses.append(bonus)
+            awaiting = done[:, min(stop, steps) - 1]
         self.inv_cov = inv.reshape(*env_shape, self.dim, self.dim)
+        self.awaiting = awaiting.reshape(env_shape).clone()
         bonus = torch.cat(bonuses, -1).reshape(*env_shape, steps)
         return bonus.movedim(-1, time_dim)
 
@@ -212,16 +348,43 @@ class EllipticalEpisodicMemory(EpisodicMemory):
     #: ``chunk^3``, the Python loop's as ``steps / chunk``.
     chunk = 128
 
+    def _episode_starts(
+        self, start: torch.Tensor | None, done: torch.Tensor, episode: torch.Tensor
+    ) -> torch.Tensor | None:
+        """``q`` ``[envs, K, dim]`` with ``q q^T = p p^T / (ridge (ridge + |p|^2))``
+        for ``p`` the first state of each step's episode (0 in episode 0, whose
+        first state is already in the memory): ``(ridge I + p p^T)^{-1} = I /
+        ridge - q q^T``, the inverse an episode that starts in the chunk begins
+        from."""
+        if start is None:
+            return None
+        steps = done.shape[1]
+        begins = torch.zeros_like(done)
+        begins[:, 1:] = done[:, :-1]
+        time = torch.arange(steps, device=done.device).expand_as(done)
+        first = torch.where(begins, time, 0).cummax(1).values
+        p = start.gather(1, first.unsqueeze(-1).expand_as(start))
+        p = p * (episode > 0).unsqueeze(-1)
+        return p / (self.ridge * (self.ridge + p.pow(2).sum(-1, keepdim=True))).sqrt()
+
     def _walk_chunk(
-        self, inv: torch.Tensor, phi: torch.Tensor, done: torch.Tensor
+        self,
+        inv: torch.Tensor,
+        phi: torch.Tensor,
+        done: torch.Tensor,
+        start: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Bonuses ``[envs, K]`` of ``phi`` ``[envs, K, dim]`` and the memory after."""
         steps = phi.shape[1]
         # The episode of each step, counted from the chunk's first: 0 continues
-        # the memory ``inv``, later ones start from ``I / ridge``.
+        # the memory ``inv``, later ones start from ``I / ridge`` (less ``q q^T``
+        # where their first state joins the memory).
         episode = done.long().cumsum(1) - done.long()
         inv_phi = phi @ inv  # rows A phi_i (A symmetric)
         fresh_phi = phi / self.ridge
+        q = self._episode_starts(start, done, episode)
+        if q is not None:
+            fresh_phi = fresh_phi - q * (q * phi).sum(-1, keepdim=True)
         continues = episode == 0
         gram = torch.where(
             continues[:, :, None] & continues[:, None, :],
@@ -239,15 +402,22 @@ class EllipticalEpisodicMemory(EpisodicMemory):
         last_continues = (last == 0)[:, None, None]
         u = torch.where(last_continues, inv_phi, fresh_phi) * in_last
         # inv - u^T M^-1 u where the last episode continues the memory, I / ridge
-        # - u^T M^-1 u where it starts afresh: in place, through a product buffer
-        # kept between calls (the memory is envs x dim^2 float64, 128 MiB for E3B's
-        # 16 x 1024^2; a new one a call would cost more than the products).
+        # (- q q^T) - u^T M^-1 u where it starts afresh: in place, through a
+        # product buffer kept between calls (the memory is envs x dim^2 float64,
+        # 128 MiB for E3B's 16 x 1024^2; a new one a call would cost more than the
+        # products).
         prod = self._product_buffer(inv)
         torch.matmul(u.transpose(1, 2), torch.cholesky_solve(u, factor), out=prod)
         fresh = ~last_continues.view(-1)
         inv = inv.sub_(prod)
         if fresh.any():
-            inv[fresh] = self._fresh((), phi.device) - prod[fresh]
+            begun = self._fresh((), phi.device) - prod[fresh]
+            if q is not None:
+                # The last step's q is its episode's, the last one's unless that
+                # episode ended there (then it has no state yet).
+                q_last = (q[:, -1] * ~done[:, -1, None])[fresh]
+                begun = begun - q_last.unsqueeze(-1) * q_last.unsqueeze(-2)
+            inv[fresh] = begun
         return bonus, inv
 
     def _product_buffer(self, inv: torch.Tensor) -> torch.Tensor:
@@ -270,6 +440,13 @@ class EllipticalEpisodicMemory(EpisodicMemory):
         inv = state_dict.get(prefix + "inv_cov")
         if inv is not None:
             self.inv_cov = torch.zeros_like(inv)
+            # A state_dict from before ``awaiting`` was kept: its episodes are
+            # under way (an empty memory awaits every env, as a new one).
+            awaiting = torch.zeros(inv.shape[:-2], dtype=torch.bool, device=inv.device)
+            if not inv.numel():
+                awaiting = torch.zeros(0, dtype=torch.bool, device=inv.device)
+            state_dict.setdefault(prefix + "awaiting", awaiting)
+            self.awaiting = torch.zeros_like(state_dict[prefix + "awaiting"])
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
 

@@ -11,7 +11,11 @@ from tensordict.utils import NestedKey, unravel_key
 
 from torchrl_surprise.modules.vae import StateVAE, kl_to_standard_normal
 from torchrl_surprise.transforms.base import IntrinsicRewardTransform
-from torchrl_surprise.transforms.episodic import EllipticalEpisodicMemory
+from torchrl_surprise.transforms.episodic import (
+    EllipticalEpisodicMemory,
+    checked_flag,
+    embed_where,
+)
 from torchrl_surprise.transforms.noveld import NovelDTransform
 
 __all__ = [
@@ -207,6 +211,11 @@ class VAEEllipticalTransform(VAESurpriseTransform):
         global_bonus (str): ``"none"`` (the elliptical term alone) or ``"kl"``.
         unit_latent (bool): ``phi`` is the posterior mean at unit length (the
             global KL, with ``global_bonus="kl"``, reads the posterior as it is).
+        start_in_memory (bool): an episode's first state joins ``C`` before
+            the first bonus, as in E3B's code
+            (:class:`~torchrl_surprise.transforms.E3BTransform`); ``False``
+            (the default, every committed result): ``C`` starts from
+            ``ridge * I``.
         done_key (NestedKey): the ``"next"`` entry that ends an episode.
         **kwargs: see :class:`VAESurpriseTransform`.
 
@@ -234,6 +243,7 @@ class VAEEllipticalTransform(VAESurpriseTransform):
         ridge: float = 0.1,
         global_bonus: str = "none",
         unit_latent: bool = False,
+        start_in_memory: bool = False,
         done_key: NestedKey = "done",
         **kwargs,
     ):
@@ -241,17 +251,15 @@ class VAEEllipticalTransform(VAESurpriseTransform):
             raise ValueError(
                 f"global_bonus must be one of {GLOBAL_BONUSES}, got {global_bonus!r}."
             )
-        if not isinstance(unit_latent, bool):
-            raise TypeError(
-                f"unit_latent must be a bool, got {unit_latent!r} "
-                f"({type(unit_latent).__name__})."
-            )
+        checked_flag("unit_latent", unit_latent)
+        checked_flag("start_in_memory", start_in_memory)
         memory = EllipticalEpisodicMemory(vae.latent_dim, ridge)
         super().__init__(vae, in_keys=in_keys, **kwargs)
         self.memory = memory
         self.ridge = memory.ridge
         self.global_bonus = global_bonus
         self.unit_latent = unit_latent
+        self.start_in_memory = start_in_memory
         self.done_key = unravel_key(done_key)
 
     def reset_episodes(self) -> None:
@@ -276,13 +284,26 @@ class VAEEllipticalTransform(VAESurpriseTransform):
             bonus = bonus * kl_to_standard_normal(loc, scale)
         return bonus
 
+    def _starts(self, tensordict: TensorDictBase, mask: torch.Tensor):
+        """``phi`` of the states that begin an episode (``mask``), or ``None``
+        when they do not join the memory."""
+        if not self.start_in_memory:
+            return None
+        observations = self._observations(tensordict, "the root tensordict")
+
+        def embed(*obs):
+            return self._features(self.vae.posterior(*obs)[0])
+
+        return embed_where(embed, observations, mask, self.vae.latent_dim)
+
     def _compute_bonus(
         self, tensordict: TensorDictBase, next_tensordict: TensorDictBase
     ) -> torch.Tensor:
         # The env path: one step of every env.
         done = self._episode_ends(next_tensordict, self.done_key)
         loc, scale = self._posterior(next_tensordict)
-        bonus = self.memory.step(self._features(loc), done)
+        start = self._starts(tensordict, self.memory.pending(loc.shape[:-1]))
+        bonus = self.memory.step(self._features(loc), done, start)
         return self._with_global(bonus, loc, scale)
 
     def _compute_batch_bonus(
@@ -294,7 +315,10 @@ class VAEEllipticalTransform(VAESurpriseTransform):
         time_dim = self._require_time_dim(time_dim)
         done = self._episode_ends(next_tensordict, self.done_key)
         loc, scale = self._posterior(next_tensordict)
-        bonus = self.memory.walk(self._features(loc), done, time_dim)
+        if done is None:
+            done = torch.zeros(loc.shape[:-1], dtype=torch.bool, device=loc.device)
+        start = self._starts(tensordict, self.memory.pending_starts(done, time_dim))
+        bonus = self.memory.walk(self._features(loc), done, time_dim, start)
         return self._with_global(bonus, loc, scale)
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
