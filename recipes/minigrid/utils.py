@@ -97,6 +97,7 @@ def make_reward_clip(cfg) -> RewardClipping | None:
         return None
     return RewardClipping(-bound, bound, in_keys=[("next", "reward")])
 
+
 def make_loss(cfg, model, intrinsic_value, bonus_transform):
     """TorchRL's A2CLoss or ClipPPOLoss, and the advantage (GAE, or two streams).
 
