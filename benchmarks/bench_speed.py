@@ -194,7 +194,7 @@ def run_child(cmd: list[str]) -> Child:
 
 
 def last_scalar(run_dir: Path, logger: str, name: str) -> float:
-    from common.run import read_scalar_csv
+    from common.scalar_logs import read_scalar_csv
 
     _, values = read_scalar_csv(run_dir / "logs" / logger / "scalars" / f"{name}.csv")
     return float(values[-1])

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from filelock import FileLock
 
-from common.run import checkpoint_info, load_checkpoint
+from common.checkpoint import checkpoint_info, load_checkpoint
 
 
 def load_recipe_utils(recipe_dir: Path):

@@ -32,7 +32,7 @@ from common.config import (
     validate_minigrid,
 )
 from common.minigrid import VAE_VARIANTS as VAE_TRANSFORMS
-from common.run import RESUMABLE_CHANGES, _flatten
+from common.rundir import RESUMABLE_CHANGES, _flatten
 
 RECIPES = Path(__file__).resolve().parents[1] / "recipes"
 VALIDATE = {"minigrid": validate_minigrid, "ddpg_mujoco": validate_ddpg}

@@ -12,8 +12,8 @@ from _recipe_run import run_results_script
 from tensordict import TensorDict
 from torchrl.data import Categorical
 
+from common.checkpoint import RunCheckpoint, RunCounters
 from common.minigrid import make_actor_critic
-from common.run import RunCheckpoint, RunCounters
 from results.milestones import (
     MILESTONES,
     TOGGLE_COLUMNS,

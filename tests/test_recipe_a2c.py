@@ -24,7 +24,8 @@ from _recipe_run import (
 )
 from tensordict import TensorDict
 
-from common.run import load_checkpoint, read_scalar_csv
+from common.checkpoint import load_checkpoint
+from common.scalar_logs import read_scalar_csv
 from results.heatmap import load_bonus_transform
 
 RECIPES = Path(__file__).resolve().parents[1] / "recipes"

@@ -22,8 +22,9 @@ from _recipe_run import (
 )
 from hydra import compose, initialize_config_dir
 
+from common.checkpoint import load_checkpoint
 from common.config import validate_ddpg
-from common.run import load_checkpoint, read_scalar_csv
+from common.scalar_logs import read_scalar_csv
 from results import aggregate
 
 RECIPE = Path(__file__).resolve().parents[1] / "recipes" / "ddpg_mujoco"

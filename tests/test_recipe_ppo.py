@@ -17,7 +17,8 @@ from _recipe_run import (
     shared_run,
 )
 
-from common.run import load_checkpoint, read_scalar_csv
+from common.checkpoint import load_checkpoint
+from common.scalar_logs import read_scalar_csv
 
 RECIPE = Path(__file__).resolve().parents[1] / "recipes" / "minigrid"
 MAIN = RECIPE / "main.py"

@@ -22,13 +22,14 @@ from _recipe_run import (
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
+from common.checkpoint import load_checkpoint
 from common.config import validate_minigrid
 from common.minigrid import (
     make_actor_critic,
     make_collector,
     make_env,
 )
-from common.run import load_checkpoint, read_scalar_csv
+from common.scalar_logs import read_scalar_csv
 from torchrl_surprise.collectors import ResumableCollector
 
 RECIPES = Path(__file__).resolve().parents[1] / "recipes"

@@ -25,18 +25,17 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-import common.run as run_module
-from common.run import (
+import common.files as files_module
+from common.checkpoint import (
     CHECKPOINT_NAME,
     LEGACY_CHECKPOINT_NAME,
     RunCheckpoint,
     RunCounters,
-    TrainingRun,
     load_checkpoint,
-    prepare_run,
-    read_scalar_csv,
-    truncate_scalar_logs,
 )
+from common.run import TrainingRun
+from common.rundir import prepare_run
+from common.scalar_logs import read_scalar_csv, truncate_scalar_logs
 
 SCALARS = "logs/demo/scalars"
 DRAW = f"{SCALARS}/train/draw.csv"
@@ -142,12 +141,12 @@ class _FailingFile:
 
 
 def _failing_writes(monkeypatch, code):
-    # Every file common.run opens for writing fails after 5 bytes.
+    # Every file the run writes (common.files) fails after 5 bytes.
     def failing_open(path, mode="r", *args, **kwargs):
         file = open(path, mode, *args, **kwargs)
         return _FailingFile(file, code) if "w" in mode else file
 
-    monkeypatch.setattr(run_module, "open", failing_open, raising=False)
+    monkeypatch.setattr(files_module, "open", failing_open, raising=False)
 
 
 # -- writes that fail ----------------------------------------------------------

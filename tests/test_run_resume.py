@@ -10,16 +10,15 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from common.run import (
+from common.checkpoint import (
     CHECKPOINT_NAME,
     LEGACY_CHECKPOINT_NAME,
     RunCheckpoint,
     RunCounters,
-    TrainingRun,
     load_checkpoint,
-    prepare_run,
-    seed_everything,
 )
+from common.run import TrainingRun
+from common.rundir import prepare_run, seed_everything
 
 
 def config(bonus: str, variant: str = "kl"):

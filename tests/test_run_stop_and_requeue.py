@@ -17,20 +17,18 @@ from omegaconf import OmegaConf
 from tensorboard.backend.event_processing import event_file_loader
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-from common.run import (
+from common.checkpoint import (
     CHECKPOINT_NAME,
-    LOCK_NAME,
     RunCheckpoint,
     RunCounters,
-    RunMLFlowLogger,
-    StopSignal,
-    TrainingRun,
-    _submitit_requeue,
     checkpoint_info,
-    get_run_logger,
     load_checkpoint,
-    read_scalar_csv,
 )
+from common.loggers import RunMLFlowLogger, get_run_logger
+from common.run import TrainingRun
+from common.rundir import LOCK_NAME
+from common.scalar_logs import read_scalar_csv
+from common.stopping import StopSignal, submitit_requeue
 
 RECIPES = Path(__file__).resolve().parents[1] / "recipes"
 MAIN = RECIPES / "minigrid" / "main.py"
@@ -117,12 +115,12 @@ def test_a_sigterm_after_submitits_sigusr2_still_requeues(monkeypatch):
     assert stop.received == signal.SIGUSR2 and stop.name == "SIGUSR2"
     assert stop.seen == [signal.SIGUSR2, signal.SIGTERM]
     monkeypatch.setenv("SUBMITIT_EXECUTOR", "slurm")
-    requeue = _submitit_requeue(stop)
+    requeue = submitit_requeue(stop)
     assert requeue is not None
     requeue()
     assert requeued == [signal.SIGUSR2]
     monkeypatch.delenv("SUBMITIT_EXECUTOR")
-    assert _submitit_requeue(stop) is None, "not a submitit job: no requeue"
+    assert submitit_requeue(stop) is None, "not a submitit job: no requeue"
 
 
 def test_a_submitit_job_saves_on_sigusr2_is_requeued_and_resumes(tmp_path):

@@ -12,13 +12,10 @@ import torch
 import torch.utils.deterministic
 from omegaconf import OmegaConf
 
-from common.run import (
-    RunCounters,
-    TrainingRun,
-    load_checkpoint,
-    read_scalar_csv,
-    register_sweep_pickling,
-)
+from common.checkpoint import RunCounters, load_checkpoint
+from common.run import TrainingRun
+from common.scalar_logs import read_scalar_csv
+from common.stopping import register_sweep_pickling
 
 RECIPES = Path(__file__).resolve().parents[1] / "recipes"
 
@@ -29,10 +26,10 @@ def test_importing_the_run_support_registers_no_pickling_hook():
     code = (
         "import copyreg, sys, torch.utils.deterministic\n"
         f"sys.path.insert(0, {str(RECIPES)!r})\n"
-        "import common.run, common.minigrid\n"
+        "import common.run, common.stopping, common.minigrid\n"
         "t = type(torch.utils.deterministic)\n"
         "assert t not in copyreg.dispatch_table, 'hook registered at import'\n"
-        "common.run.register_sweep_pickling()\n"
+        "common.stopping.register_sweep_pickling()\n"
         "assert t in copyreg.dispatch_table\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True, timeout=120)

@@ -40,7 +40,7 @@ Examples:
 """
 
 # No "from __future__ import annotations": a sweep sends this module by value to
-# its workers (common.run.register_sweep_pickling), where string annotations
+# its workers (common.stopping.register_sweep_pickling), where string annotations
 # could not be evaluated in a module they cannot import.
 import dataclasses
 import math
@@ -57,7 +57,7 @@ from torchrl_surprise.envs.minigrid import MINIGRID_BACKENDS
 from torchrl_surprise.transforms import NORMALIZATIONS, STOCHASTICITY_LEVELS
 from torchrl_surprise.transforms.vae_surprise import GLOBAL_BONUSES, NOVELD_NOVELTIES
 
-from .run import RESUME_MODES
+from .rundir import RESUME_MODES
 
 __all__ = [
     "ALGOS",
@@ -426,7 +426,7 @@ class MiniGridConfig:
     bonus: str = required(one_of(MINIGRID_BONUSES))
     """none, vae, icm, rnd, e3b or noveld."""
     resume: str = required(RESUME)
-    """auto, true or false (common.run.RESUME_MODES)."""
+    """auto, true or false (common.rundir.RESUME_MODES)."""
     resume_without_logs: bool = required()
     """Resume a run whose scalar logs are gone (false: refused, naming them)."""
     setting: str = required()
@@ -559,7 +559,7 @@ class DDPGConfig:
     bonus: str = required(one_of(DDPG_BONUSES))
     """none or vae."""
     resume: str = required(RESUME)
-    """auto, true or false (common.run.RESUME_MODES)."""
+    """auto, true or false (common.rundir.RESUME_MODES)."""
     resume_without_logs: bool = required()
     """Resume a run whose scalar logs are gone (false: refused, naming them)."""
     setting: str = required()

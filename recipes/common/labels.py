@@ -1,6 +1,6 @@
 """What identifies a run in a sweep: its task, its setting and its seed.
 
-The run writes them to its ``status.json`` (:func:`common.run.write_run_status`)
+The run writes them to its ``status.json`` (:func:`common.status.write_run_status`)
 and the aggregation groups runs by them (``results.aggregate``): one definition,
 light enough for the training process (no pandas).
 """
@@ -40,7 +40,7 @@ _NOT_SETTING = {
     "torch_threads",
 }
 # Sections whose overrides change what a run reports or how it saves (they may
-# change on resume, common.run.RESUMABLE_CHANGES), not what it learns.
+# change on resume, common.rundir.RESUMABLE_CHANGES), not what it learns.
 _NOT_SETTING_SECTIONS = ("hydra", "logger", "eval", "checkpoint")
 
 #: What :func:`task_label` appends to the env id of a run on envpool's MiniGrid.

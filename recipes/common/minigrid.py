@@ -518,7 +518,7 @@ def load_bonus_model(
     Returns:
         The number of frames the source run had trained for.
     """
-    from .run import DamagedCheckpoint, find_checkpoint, load_checkpoint
+    from .checkpoint import DamagedCheckpoint, find_checkpoint, load_checkpoint
 
     if bonus not in _BONUS_MODELS:
         raise ValueError(

@@ -54,15 +54,11 @@ from utils import (
     replay_keys,
 )
 
+from common.checkpoint import RunCounters
 from common.config import validate_ddpg
-from common.run import (
-    EVAL_SEED_OFFSET,
-    EpisodeStats,
-    RunCounters,
-    TrainingRun,
-    evaluate,
-    register_sweep_pickling,
-)
+from common.evaluation import EVAL_SEED_OFFSET, EpisodeStats, evaluate
+from common.run import TrainingRun
+from common.stopping import register_sweep_pickling
 
 # Sweep launchers pickle this script's task function for their worker processes,
 # where the module beside the script is not importable (submitit, Ray).

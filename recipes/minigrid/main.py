@@ -44,7 +44,9 @@ import torch
 import utils  # the learners beside this script
 
 import common
+from common.checkpoint import RunCounters
 from common.config import validate_minigrid
+from common.evaluation import EVAL_SEED_OFFSET, EpisodeStats, evaluate
 from common.labels import task_label
 from common.minigrid import (
     bonus_update_steps,
@@ -59,14 +61,8 @@ from common.minigrid import (
     shared_trunk,
     train_bonus_model,
 )
-from common.run import (
-    EVAL_SEED_OFFSET,
-    EpisodeStats,
-    RunCounters,
-    TrainingRun,
-    evaluate,
-    register_sweep_pickling,
-)
+from common.run import TrainingRun
+from common.stopping import register_sweep_pickling
 from common.video import record_minigrid_video
 
 # Sweep launchers pickle this script's task function for their worker processes,

@@ -75,7 +75,7 @@ output say.
   ``total_frames / max_points``.
 - ``runs_meta.csv``: ``task,setting,seed,total_frames,last_frame,finished,run_dir``.
   A run is finished when its ``status.json`` says so (the run writes it with each
-  checkpoint: ``common.run.write_run_status``); a run directory without one
+  checkpoint: ``common.status.write_run_status``); a run directory without one
   (written before it existed) is finished when it logged its last point less
   than one logging period (the median gap between its logged steps) before
   ``collector.total_frames``: the recipes log every few updates, so the last
@@ -150,7 +150,8 @@ from common.labels import (  # noqa: F401
     setting_label,
     task_label,
 )
-from common.run import read_run_status, read_scalar_csv
+from common.scalar_logs import read_scalar_csv
+from common.status import read_run_status
 
 __all__ = [
     "EPISODES_METRIC",
@@ -387,7 +388,7 @@ def runs_metadata(runs: Sequence[RunInfo]) -> pd.DataFrame:
 
     Columns ``task, setting, seed, total_frames, last_frame, finished, run_dir``.
     ``last_frame`` is the last step any metric logged. A run is finished when its
-    ``status.json`` says so (``common.run.read_run_status``; its budget is then
+    ``status.json`` says so (``common.status.read_run_status``; its budget is then
     ``total_frames``); without one (a run of an earlier release), when
     ``last_frame`` is less than one logging period (the median gap between its
     logged steps) before ``total_frames``. Unknown values are empty.

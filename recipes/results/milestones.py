@@ -378,8 +378,8 @@ def load_policy(run_dir: str | Path):
     """
     from torchrl.data import Categorical
 
+    from common.checkpoint import find_checkpoint, load_checkpoint
     from common.minigrid import make_actor_critic
-    from common.run import find_checkpoint, load_checkpoint
 
     path = find_checkpoint(Path(run_dir))
     ckpt = load_checkpoint(path)

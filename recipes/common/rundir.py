@@ -1,0 +1,348 @@
+"""A run directory: its owner (the lock), and the checks before a run starts or
+resumes in it (seeds, a changed experiment, missing logs, a damaged checkpoint)."""
+
+from __future__ import annotations
+
+import os
+import random
+import socket
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from .checkpoint import (
+    CHECKPOINT_NAME,
+    KEPT_CHECKPOINTS,
+    DamagedCheckpoint,
+    checkpoint_info,
+    find_checkpoint,
+    is_legacy,
+    verify_archive,
+)
+from .files import remove_path, write_atomically
+from .scalar_logs import scalar_log_files, truncate_scalar_logs
+from .status import STATUS_NAME, read_run_status
+
+
+def seed_everything(seed: int) -> None:
+    """Seeds Python, NumPy and torch (all the generators a recipe draws from).
+
+    Examples:
+        >>> seed_everything(0); a = torch.rand(1)
+        >>> seed_everything(0); bool((a == torch.rand(1)).all())
+        True
+    """
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def _remove_leftover_temporaries(run_dir: Path) -> None:
+    # What a run killed while writing left: its checkpoint's, status's and
+    # truncated logs' temporary files (the run owns its directory: RunLock).
+    patterns = (
+        ".checkpoint.*",
+        "..checkpoint.*",
+        f".{STATUS_NAME}.*",
+        ".config_resolved.yaml.*",
+    )
+    for pattern in patterns:
+        for path in run_dir.glob(pattern):
+            remove_path(path)
+    for path in (run_dir / KEPT_CHECKPOINTS).glob(".checkpoint-*"):
+        remove_path(path)
+    for path in (run_dir / "logs").glob("**/scalars/**/.*.csv.*"):
+        remove_path(path)
+
+
+def _missing_scalar_logs(run_dir: Path, info: Mapping[str, Any]) -> list[str]:
+    # The CSV logs a run resumed at info["frames"] should find: those its
+    # status.json lists, or for a run without one, any.
+    logger = info["config"].get("logger") or {}
+    if info["frames"] <= 0 or logger.get("backend") != "csv":
+        return []
+    present = set(scalar_log_files(run_dir))
+    try:
+        status = read_run_status(run_dir)
+    except ValueError:
+        status = None
+    if status is not None and isinstance(status.get("logs"), list):
+        return sorted(set(status["logs"]) - present)
+    return [] if present else ["logs/*/scalars/*.csv (none left)"]
+
+
+RESUMABLE_CHANGES: tuple[str, ...] = (
+    "resume",
+    "experiment_name",
+    "torch_threads",
+    "collector.total_frames",
+    "eval",
+    "logger",
+    "checkpoint",
+    "resume_without_logs",
+)
+"""Config entries (and sections) that may change when a run resumes.
+
+They decide how long a run goes on, what it reports and where it is found
+(``experiment_name``: a sweep's runs moved into the folder of an experiment
+config renamed since resume there), not what it learns; any other difference
+between the checkpoint's config and the resumed one is refused. Nor do they name
+a sweep job's directory (each recipe's ``config.yaml`` lists them key by key in
+``hydra.job.config.override_dirname.exclude_keys``), so a sweep rerun with them
+changed finds its runs.
+"""
+
+
+RESUME_MODES: tuple[str, ...] = ("auto", "true", "false")
+"""``resume``: ``auto`` continues from a checkpoint if there is one, else starts;
+``true`` requires a checkpoint; ``false`` requires a run directory without one."""
+
+
+def _resume_mode(value) -> str:
+    mode = str(value).lower()
+    if mode not in RESUME_MODES:
+        raise ValueError(f"resume must be one of {RESUME_MODES}, got {value!r}.")
+    return mode
+
+
+def _flatten(config: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    flat: dict[str, Any] = {}
+    for key, value in config.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            flat.update(_flatten(value, name + "."))
+        else:
+            flat[name] = value
+    return flat
+
+
+BONUS_SECTIONS: tuple[str, ...] = ("vae", "icm", "rnd")
+"""The sections under ``intrinsic`` that configure one bonus each."""
+
+
+def unused_bonus_sections(config: Mapping[str, Any]) -> tuple[str, ...]:
+    """The config sections a run with this config does not read: the whole
+    ``intrinsic`` section when ``bonus`` is ``"none"``, else the ``intrinsic.<name>``
+    sections of the other bonuses. A changed default there cannot change the run,
+    so resuming it is safe.
+
+    Examples:
+        >>> unused_bonus_sections({"bonus": "icm", "intrinsic": {"vae": {}, "icm": {}}})
+        ('intrinsic.vae',)
+        >>> unused_bonus_sections({"bonus": "none", "intrinsic": {"coef": 0.5}})
+        ('intrinsic',)
+    """
+    bonus = config.get("bonus")
+    intrinsic = config.get("intrinsic")
+    if bonus is None or not isinstance(intrinsic, Mapping):
+        return ()
+    if bonus == "none":
+        return ("intrinsic",)
+    return tuple(
+        f"intrinsic.{name}"
+        for name, value in intrinsic.items()
+        if name in BONUS_SECTIONS and name != bonus and isinstance(value, Mapping)
+    )
+
+
+def config_differences(
+    saved: Mapping[str, Any],
+    current: Mapping[str, Any],
+    allowed: Sequence[str] = RESUMABLE_CHANGES,
+) -> list[str]:
+    """The settings that differ between two configs, outside ``allowed``.
+
+    A setting absent from ``saved`` is one that a newer version of the recipe
+    added after the checkpoint was written; its default is meant to keep the old
+    behaviour, so it is not counted (a setting that was removed is).
+
+    Args:
+        saved: the config a checkpoint was written under (nested mapping).
+        current: the config of the run that would resume it.
+        allowed: entries or whole sections (``"logger"``) that may differ.
+
+    Returns:
+        ``"name: saved -> current"`` for each differing setting, sorted.
+
+    Examples:
+        >>> config_differences({"env": {"name": "A"}, "logger": {"backend": "csv"}},
+        ...                    {"env": {"name": "B"}, "logger": {"backend": ""}})
+        ["env.name: 'A' -> 'B'"]
+        >>> config_differences({"a": 1}, {"a": 1, "new": 2})
+        []
+    """
+    old, new = _flatten(saved), _flatten(current)
+    diffs = []
+    for name in sorted(old):
+        if any(name == a or name.startswith(a + ".") for a in allowed):
+            continue
+        before, after = old[name], new.get(name, "<absent>")
+        if before != after:
+            diffs.append(f"{name}: {before!r} -> {after!r}")
+    return diffs
+
+
+def prepare_run(cfg, run_dir: str | os.PathLike) -> tuple[Path, dict[str, Any] | None]:
+    """What every recipe does first: threads, seeds, resume checks, resolved config.
+
+    Sets ``torch.set_num_threads(cfg.torch_threads)`` and seeds with ``cfg.seed``.
+    With ``cfg.resume`` ``auto`` (or ``true``) and a checkpoint in ``run_dir``
+    (:func:`find_checkpoint`), reads its manifest, refuses it if the experiment
+    changed (:func:`config_differences`, naming each setting; the sections of
+    bonuses the run does not use, from :func:`unused_bonus_sections`, may change),
+    and cuts the CSV logs at the checkpoint's frame so each step stays logged
+    once; without a checkpoint the run starts at frame 0, and the rows a run
+    killed before its first checkpoint left in ``<run_dir>/logs`` go.
+    ``resume=false`` refuses a directory that already holds a checkpoint, so that
+    nothing computed is overwritten. Writes ``config_resolved.yaml`` once the
+    checks pass.
+
+    A resume also refuses a damaged checkpoint (:class:`DamagedCheckpoint`,
+    naming the earlier one ``checkpoint.keep`` kept), a damaged scalar log
+    (:class:`DamagedLog`, naming the line), and a run whose scalar logs are gone
+    (those its ``status.json`` lists, or all of them): it would go on with a
+    learning curve missing everything before the checkpoint. Set
+    ``resume_without_logs=true`` to go on all the same. The temporary files of a
+    write that a kill interrupted are removed.
+
+    Returns:
+        ``(checkpoint to resume from, its checkpoint_info)``, or
+        ``(<run_dir>/checkpoint.torchrl, None)`` for a new run.
+    """
+    from omegaconf import OmegaConf
+
+    run_dir = Path(run_dir)
+    mode = _resume_mode(cfg.resume)
+    torch.set_num_threads(cfg.torch_threads)
+    seed_everything(cfg.seed)
+    config = OmegaConf.to_container(cfg, resolve=True)
+    info = None
+    if run_dir.is_dir():
+        _remove_leftover_temporaries(run_dir)
+    try:
+        ckpt_path = find_checkpoint(run_dir) if run_dir.is_dir() else None
+    except FileNotFoundError:
+        ckpt_path = None
+    if ckpt_path is not None:
+        if mode == "false":
+            raise FileExistsError(
+                f"{run_dir} already holds a checkpoint: pass resume=auto to continue "
+                "it, or another hydra.run.dir to start a new run."
+            )
+        try:
+            info = checkpoint_info(ckpt_path)
+            if not is_legacy(ckpt_path):
+                verify_archive(ckpt_path)
+        except DamagedCheckpoint as err:
+            raise err.for_resume(run_dir) from err.error
+        diffs = config_differences(
+            info["config"],
+            config,
+            allowed=RESUMABLE_CHANGES + unused_bonus_sections(info["config"]),
+        )
+        if diffs:
+            raise ValueError(
+                f"Cannot resume {run_dir}: the experiment changed ("
+                + "; ".join(diffs)
+                + "). Only these settings may change on resume: "
+                + ", ".join(RESUMABLE_CHANGES)
+                + ". Start a new run directory for a new experiment."
+            )
+        missing = _missing_scalar_logs(run_dir, info)
+        if missing and not cfg.get("resume_without_logs", False):
+            raise FileNotFoundError(
+                f"Cannot resume {run_dir}: its checkpoint is at {info['frames']} "
+                "frames but scalar logs it wrote before are missing: "
+                + ", ".join(missing)
+                + ". Resumed, its learning curve and aggregated results would "
+                "lack everything before that frame. Put the logs back; or start "
+                f"afresh (move {run_dir} away, or another hydra.run.dir, with "
+                "resume=false); or pass resume_without_logs=true to go on "
+                "without the early curve."
+            )
+        truncate_scalar_logs(run_dir / "logs", info["frames"])
+    elif mode == "true":
+        raise FileNotFoundError(
+            f"resume=true but there is no checkpoint in {run_dir}; pass the run "
+            "directory of the run to resume as hydra.run.dir=<dir>."
+        )
+    else:
+        # A run killed before its first checkpoint left rows that this run, which
+        # starts from frame 0 with the same seed, logs again: drop them.
+        truncate_scalar_logs(run_dir / "logs", -1)
+        ckpt_path = run_dir / CHECKPOINT_NAME
+    run_dir.mkdir(parents=True, exist_ok=True)
+    write_atomically(run_dir / "config_resolved.yaml", OmegaConf.to_yaml(config))
+    return ckpt_path, info
+
+
+LOCK_NAME = "run.lock"
+"""The lock file of a run directory: ``<pid> <host>`` of the process that owns it."""
+
+
+class RunDirInUse(RuntimeError):
+    """Another live process owns the run directory (:class:`RunLock`)."""
+
+
+class RunLock:
+    """Makes one process at a time the owner of a run directory.
+
+    An exclusive ``fcntl.flock`` on ``<run_dir>/run.lock``, which holds the owner's
+    pid and host. The kernel releases the lock when its process ends, however it
+    ends (a SIGKILL, a node's crash), so a dead run never leaves the directory
+    stuck; the pid and host in the file only name the owner in the message.
+
+    Args:
+        run_dir: the run directory (created if absent).
+
+    Raises:
+        RunDirInUse: another process holds the lock; the message names the
+            directory and that process.
+
+    Examples:
+        >>> import tempfile
+        >>> run_dir = tempfile.mkdtemp()
+        >>> lock = RunLock(run_dir)
+        >>> lock.holder() == f"process {os.getpid()} on {socket.gethostname()}"
+        True
+        >>> lock.release()
+    """
+
+    def __init__(self, run_dir: str | os.PathLike):
+        import fcntl
+
+        self.path = Path(run_dir) / LOCK_NAME
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._fd = None
+        self._fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = self.holder()
+            self.release()
+            raise RunDirInUse(
+                f"{self.path.parent} is in use by {holder}: one process at a time "
+                "runs in a run directory. Wait for that run to end (or stop it), or "
+                "pass another hydra.run.dir."
+            ) from None
+        os.ftruncate(self._fd, 0)
+        os.pwrite(self._fd, f"{os.getpid()} {socket.gethostname()}\n".encode(), 0)
+
+    def holder(self) -> str:
+        """``"process <pid> on <host>"``, as the lock file says."""
+        try:
+            pid, host = self.path.read_text().split()[:2]
+        except (OSError, ValueError):
+            return "another process"
+        return f"process {pid} on {host}"
+
+    def release(self) -> None:
+        """Releases the lock (the process's end does it as well)."""
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+    __del__ = release
