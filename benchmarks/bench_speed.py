@@ -576,15 +576,15 @@ def product_gflops(size: int = 256, reps: int = 400) -> dict[str, float]:
     bare update's on MKL (``nn.Linear``): how the two libraries compare on the
     host decides much of item 2's ratio, so the table prints it.
     """
-    from torchrl_surprise.modules.vae import _ONEDNN_LINEAR
+    from torchrl_surprise.modules.vae import _onednn_linear
 
     previous = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
         x, w, b = torch.randn(size, size), torch.randn(size, size), torch.randn(size)
         calls = {"mkl": lambda: nn.functional.linear(x, w, b)}
-        if _ONEDNN_LINEAR is not None:
-            calls["onednn"] = lambda: _ONEDNN_LINEAR(x, w, b, "none", [], "")
+        if _onednn_linear() is not None:
+            calls["onednn"] = lambda: _onednn_linear()(x, w, b, "none", [], "")
         rates = {}
         for name, call in calls.items():
             for _ in range(20):

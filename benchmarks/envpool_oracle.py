@@ -27,6 +27,7 @@ from pathlib import Path
 
 import gymnasium as gym
 
+from torchrl_surprise.envs import register_minigrid_envs
 from torchrl_surprise.envs.envpool import (
     EnvPoolMiniGridEnv,
     minigrid_env_from_envpool_state,
@@ -52,6 +53,7 @@ def envpool_solutions(task: str, seeds: int, redraw: bool | None = None) -> list
     env.reset()
     states = env.debug_states()
     env.close()
+    register_minigrid_envs()
     twin = gym.make(task)
     solutions = []
     for state in states:

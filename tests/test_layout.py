@@ -64,3 +64,78 @@ def test_a_missing_env_family_names_its_extra():
     )
     assert result.returncode != 0
     assert 'pip install "torchrl_surprise[minigrid]"' in result.stderr
+
+
+def test_importing_the_package_does_no_tensor_work_and_registers_nothing():
+    # Every module of the package imported under a mode that records each torch
+    # call (the libraries it builds on imported before), then gymnasium's registry
+    # read: the paper's MultiRoom ids are registered on request only.
+    modules = sorted(
+        ".".join(path.relative_to(PACKAGE.parent).with_suffix("").parts)
+        for path in PACKAGE.rglob("*.py")
+        if path.name != "__init__.py"
+    )
+    code = f"""
+import importlib, torch, torchrl, tensordict, gymnasium, minigrid, envpool
+import torchrl.envs, torchrl.objectives, torchrl.collectors, torchrl.data
+from torch.overrides import TorchFunctionMode
+
+calls = []
+class Record(TorchFunctionMode):
+    def __torch_function__(self, func, types, args=(), kwargs=None):
+        calls.append(getattr(func, "__name__", str(func)))
+        return func(*args, **(kwargs or {{}}))
+
+with Record():
+    for name in ["torchrl_surprise", *{modules!r}]:
+        importlib.import_module(name)
+print(calls)
+print("MiniGrid-MultiRoom-N3-S4-v0" in gymnasium.registry)
+"""
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    ).stdout.splitlines()
+    assert out == ["[]", "False"]
+
+
+def _imported_modules(path: Path) -> set[str]:
+    """The package's modules that ``path`` imports, anywhere in it."""
+    package = ".".join(path.relative_to(PACKAGE.parent).with_suffix("").parts[:-1])
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            found |= {alias.name for alias in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parts = package.split(".")[: len(package.split(".")) - node.level + 1]
+                base = ".".join(parts + ([base] if base else []))
+            found.add(base)
+            found |= {f"{base}.{alias.name}" for alias in node.names}
+    return {name for name in found if name.startswith("torchrl_surprise")}
+
+
+def test_the_package_has_no_import_circle():
+    # Between modules (a package's __init__, which gathers its modules, aside):
+    # function-level imports count.
+    modules = {
+        ".".join(path.relative_to(PACKAGE.parent).with_suffix("").parts): path
+        for path in PACKAGE.rglob("*.py")
+        if path.name != "__init__.py"
+    }
+    graph = {
+        name: _imported_modules(path) & set(modules) - {name}
+        for name, path in modules.items()
+    }
+    circles = []
+
+    def visit(name, trail):
+        for nxt in sorted(graph[name]):
+            if nxt in trail:
+                circles.append(" -> ".join(trail[trail.index(nxt) :] + [nxt]))
+            elif len(trail) < len(graph):
+                visit(nxt, trail + [nxt])
+
+    for name in sorted(graph):
+        visit(name, [name])
+    assert circles == []

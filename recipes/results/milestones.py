@@ -408,8 +408,10 @@ def load_policy(run_dir: str | Path):
 def max_steps(env_name: str) -> int:
     """The task's ``max_steps`` (minigrid's; envpool's tasks keep it)."""
     import gymnasium as gym
-    import minigrid  # noqa: F401  (registers the MiniGrid envs)
 
+    from torchrl_surprise.envs import register_minigrid_envs
+
+    register_minigrid_envs()
     env = gym.make(env_name)
     try:
         return int(env.unwrapped.max_steps)

@@ -5,8 +5,8 @@ Each env family is an extra, imported on first use of its names, so that
 ``import torchrl_surprise.envs`` needs neither minigrid nor mujoco:
 
 * MiniGrid (``pip install "torchrl_surprise[minigrid]"``): :func:`make_minigrid_env`
-  (the paper's ``MiniGrid-MultiRoom-N3-S4-v0`` and ``-N4-S4-v0`` included; they are
-  registered with gymnasium when :mod:`torchrl_surprise.envs.minigrid` is imported),
+  (the paper's ``MiniGrid-MultiRoom-N3-S4-v0`` and ``-N4-S4-v0`` included; it
+  registers them with gymnasium, as :func:`register_minigrid_envs` does),
   the oracle :func:`solve_minigrid` and what is achievable under action noise,
   :func:`optimal_returns_under_action_noise`;
 * MuJoCo (``pip install "torchrl_surprise[mujoco]"``): :func:`make_mujoco_env`.
@@ -33,9 +33,9 @@ from torchrl_surprise.envs.vector import (
 # name -> (module, the extra that installs what the module needs)
 _LAZY = {
     "MINIGRID_OBS_KEYS": ("minigrid", "minigrid"),
-    "MULTIROOM_N3_S4": ("minigrid", "minigrid"),
-    "MULTIROOM_N4_S4": ("minigrid", "minigrid"),
-    "PAPER_MULTIROOM_IDS": ("minigrid", "minigrid"),
+    "MULTIROOM_N3_S4": ("minigrid_ids", "minigrid"),
+    "MULTIROOM_N4_S4": ("minigrid_ids", "minigrid"),
+    "PAPER_MULTIROOM_IDS": ("minigrid_ids", "minigrid"),
     "make_minigrid_env": ("minigrid", "minigrid"),
     "MINIGRID_BACKENDS": ("minigrid", "minigrid"),
     "EnvPoolMiniGridEnv": ("envpool", "envpool"),
@@ -44,7 +44,7 @@ _LAZY = {
     "envpool_minigrid_task": ("envpool", "envpool"),
     "barrier_seed": ("envpool", "envpool"),
     "ENVPOOL_PAPER_TASKS": ("envpool", "envpool"),
-    "register_minigrid_envs": ("minigrid", "minigrid"),
+    "register_minigrid_envs": ("minigrid_ids", "minigrid"),
     "OracleSolution": ("oracle", "minigrid"),
     "oracle_returns": ("oracle", "minigrid"),
     "oracle_table": ("oracle", "minigrid"),

@@ -90,6 +90,8 @@ from torchrl.data import (
 )
 from torchrl.envs import EnvBase
 
+from torchrl_surprise.envs.minigrid_ids import register_minigrid_envs
+
 __all__ = [
     "ENVPOOL_PAPER_TASKS",
     "EnvPoolMiniGridEnv",
@@ -832,9 +834,7 @@ def minigrid_env_from_envpool_state(
     """
     import gymnasium as gym
 
-    # Registers minigrid's ids and the paper's MultiRoom ids with gymnasium.
-    from torchrl_surprise.envs.minigrid import register_minigrid_envs
-
+    # minigrid's ids and the paper's MultiRoom ids, in gymnasium's registry
     register_minigrid_envs()
     name = str(state.env_name)
     if name in _REFUSED_TASKS:

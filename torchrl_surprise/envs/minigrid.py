@@ -4,9 +4,9 @@ Two things live here:
 
 * :func:`register_minigrid_envs` registers the MultiRoom variants used by the paper
   that minigrid does not register itself (``MiniGrid-MultiRoom-N3-S4-v0`` and
-  ``MiniGrid-MultiRoom-N4-S4-v0``). It runs on import of :mod:`torchrl_surprise.envs`,
-  so worker processes that import the package (or unpickle a factory from this
-  module) see the ids too.
+  ``MiniGrid-MultiRoom-N4-S4-v0``). :func:`make_minigrid_env` calls it (so does a
+  worker process that builds its env through it); call it yourself before
+  ``gymnasium.make`` of those ids. Importing the package registers nothing.
 * :func:`make_minigrid_env` builds a batch of MiniGrid envs as one in-process
   gymnasium ``SyncVectorEnv`` wrapped once by TorchRL's
   :class:`~torchrl.envs.GymWrapper`. On 2 cores this was the fastest TorchRL setup
@@ -30,12 +30,10 @@ collectors do it).
 
 from __future__ import annotations
 
-import difflib
 import functools
 from typing import Any
 
 import gymnasium as gym
-import minigrid  # noqa: F401  (registers the MiniGrid-* ids with gymnasium)
 import torch
 from gymnasium.wrappers import FilterObservation
 from minigrid.minigrid_env import MiniGridEnv
@@ -43,6 +41,13 @@ from tensordict import NestedKey
 from torchrl.data import Categorical, Composite, OneHot
 from torchrl.envs import EnvBase, Transform
 
+from torchrl_surprise.envs.minigrid_ids import (
+    MULTIROOM_N3_S4,
+    MULTIROOM_N4_S4,
+    PAPER_MULTIROOM_IDS,
+    check_minigrid_id,
+    register_minigrid_envs,
+)
 from torchrl_surprise.envs.vector import VectorGymWrapper
 
 __all__ = [
@@ -55,82 +60,15 @@ __all__ = [
     "register_minigrid_envs",
 ]
 
-MULTIROOM_N3_S4 = "MiniGrid-MultiRoom-N3-S4-v0"
-"""MultiRoom with exactly 3 rooms of size at most 4 (max_steps 60)."""
-
-MULTIROOM_N4_S4 = "MiniGrid-MultiRoom-N4-S4-v0"
-"""MultiRoom with exactly 4 rooms of size at most 4 (max_steps 80)."""
-
-PAPER_MULTIROOM_IDS: dict[str, int] = {MULTIROOM_N3_S4: 3, MULTIROOM_N4_S4: 4}
-"""The paper's MultiRoom ids, mapped to their number of rooms."""
-
 MINIGRID_OBS_KEYS: tuple[str, ...] = ("image", "direction")
 """Observation entries kept from MiniGrid's dict observation (the mission is dropped)."""
-
-_MAX_ROOM_SIZE = 4
-_STEPS_PER_ROOM = 20  # minigrid's own default for MultiRoomEnv: max_steps = 20 * rooms
-
-
-def register_minigrid_envs() -> list[str]:
-    """Registers the paper's MultiRoom tasks with gymnasium, once.
-
-    ``MiniGrid-MultiRoom-N{n}-S4-v0`` is ``minigrid.envs.MultiRoomEnv`` with
-    ``minNumRooms=maxNumRooms=n``, ``maxRoomSize=4`` and ``max_steps=20 * n``, for
-    n in (3, 4). Calling this again is a no-op: ids already in the registry are left
-    alone.
-
-    Returns:
-        The registered ids (whether registered by this call or before).
-
-    Examples:
-        >>> import gymnasium as gym
-        >>> from torchrl_surprise.envs import register_minigrid_envs
-        >>> register_minigrid_envs()
-        ['MiniGrid-MultiRoom-N3-S4-v0', 'MiniGrid-MultiRoom-N4-S4-v0']
-        >>> gym.spec("MiniGrid-MultiRoom-N3-S4-v0").kwargs["max_steps"]
-        60
-    """
-    for env_id, num_rooms in PAPER_MULTIROOM_IDS.items():
-        if env_id in gym.registry:
-            continue
-        gym.register(
-            id=env_id,
-            entry_point="minigrid.envs:MultiRoomEnv",
-            kwargs={
-                "minNumRooms": num_rooms,
-                "maxNumRooms": num_rooms,
-                "maxRoomSize": _MAX_ROOM_SIZE,
-                "max_steps": _STEPS_PER_ROOM * num_rooms,
-            },
-        )
-    return list(PAPER_MULTIROOM_IDS)
-
-
-def _known_minigrid_ids() -> list[str]:
-    return sorted(
-        env_id
-        for env_id in gym.registry
-        if env_id.startswith("MiniGrid-") or env_id.startswith("BabyAI-")
-    )
-
-
-def _check_minigrid_id(env_name: str) -> None:
-    if env_name in gym.registry:
-        return
-    known = _known_minigrid_ids()
-    close = difflib.get_close_matches(env_name, known, n=5, cutoff=0.6)
-    suggestions = close if close else known[:5]
-    raise ValueError(
-        f"Unknown MiniGrid environment id {env_name!r}. "
-        f"{'Did you mean' if close else 'Known ids include'}: "
-        f"{', '.join(suggestions)} ({len(known)} MiniGrid/BabyAI ids are registered)."
-    )
 
 
 def _make_single_minigrid(
     env_name: str, env_kwargs: dict[str, Any] | None = None
 ) -> gym.Env:
     """One MiniGrid env with the mission dropped (module-level, hence picklable)."""
+    register_minigrid_envs()  # in a worker process too
     env = gym.make(env_name, **(env_kwargs or {}))
     if not isinstance(env.unwrapped, MiniGridEnv):
         env.close()
@@ -264,7 +202,7 @@ def make_minigrid_env(
             env = env.append_transform(_OneHotAction())
         return env
     register_minigrid_envs()
-    _check_minigrid_id(env_name)
+    check_minigrid_id(env_name)
     env_fn = functools.partial(_make_single_minigrid, env_name, env_kwargs)
     vec_env = gym.vector.SyncVectorEnv(
         [env_fn] * num_envs, autoreset_mode=gym.vector.AutoresetMode.DISABLED
@@ -275,7 +213,3 @@ def make_minigrid_env(
     if seed is not None:
         env.set_seed(seed)
     return env
-
-
-# The paper's ids are known to gymnasium as soon as this module is imported.
-register_minigrid_envs()

@@ -62,7 +62,7 @@ from minigrid.envs.keycorridor import KeyCorridorEnv
 from minigrid.envs.obstructedmaze import ObstructedMazeEnv
 from minigrid.minigrid_env import MiniGridEnv
 
-from torchrl_surprise.envs.minigrid import register_minigrid_envs
+from torchrl_surprise.envs.minigrid_ids import register_minigrid_envs
 
 __all__ = [
     "NOISY_ORACLE_CSV_COLUMNS",

@@ -13,6 +13,7 @@ parameters of a likelihood over the same observations. Two families ship:
 
 from __future__ import annotations
 
+import functools
 import math
 import platform
 from collections.abc import Sequence
@@ -76,8 +77,11 @@ def _check_floating(name: str, tensor: torch.Tensor, last_shape: tuple[int, ...]
         )
 
 
-def _onednn_linear_op():
+@functools.cache
+def _onednn_linear():
     """oneDNN's dense linear (``x @ w.T + b``) on strided CPU tensors, or ``None``.
+
+    Probed on first use (a :class:`OneDNNLinear` forward), never at import.
 
     ``nn.Linear`` runs float32 products on MKL. On the AMD EPYC (Zen 5, AVX-512)
     this was measured on, MKL's sgemm reached ~90 GFLOP/s on one core at every
@@ -108,7 +112,6 @@ def _onednn_linear_op():
     return op
 
 
-_ONEDNN_LINEAR = _onednn_linear_op()
 # Below ~2M multiply-adds oneDNN's fixed cost per call (~15 us) outweighs its
 # faster kernel: small products stay on MKL.
 _ONEDNN_MIN_MACS = 1 << 21
@@ -116,10 +119,9 @@ _ONEDNN_MIN_MACS = 1 << 21
 
 def _matmul_t(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """``a @ b.T`` for 2-D float32 CPU tensors (any strides), on the faster library."""
-    if _ONEDNN_LINEAR is not None and a.shape[0] * a.shape[1] * b.shape[0] >= (
-        _ONEDNN_MIN_MACS
-    ):
-        return _ONEDNN_LINEAR(a, b, None, "none", [], "")
+    op = _onednn_linear()
+    if op is not None and a.shape[0] * a.shape[1] * b.shape[0] >= _ONEDNN_MIN_MACS:
+        return op(a, b, None, "none", [], "")
     return a.mm(b.t())
 
 
@@ -128,7 +130,7 @@ class _OneDNNLinearFunction(torch.autograd.Function):
 
     @staticmethod
     def forward(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None):
-        return _ONEDNN_LINEAR(x, weight, bias, "none", [], "")
+        return _onednn_linear()(x, weight, bias, "none", [], "")
 
     @staticmethod
     def setup_context(ctx, inputs, output) -> None:
@@ -164,8 +166,9 @@ class OneDNNLinear(nn.Linear):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         weight, bias = self.weight, self.bias
+        op = _onednn_linear()
         if (
-            _ONEDNN_LINEAR is None
+            op is None
             # torch.compile's CPU backend lowers this op for frozen weights only.
             or torch.compiler.is_compiling()
             or x.device.type != "cpu"
@@ -183,7 +186,7 @@ class OneDNNLinear(nn.Linear):
         ):
             out = _OneDNNLinearFunction.apply(x2d, weight, bias)
         else:
-            out = _ONEDNN_LINEAR(x2d, weight, bias, "none", [], "")
+            out = op(x2d, weight, bias, "none", [], "")
         return out.reshape(*x.shape[:-1], self.out_features)
 
 
