@@ -47,6 +47,7 @@ def _replay_policy(actions: torch.Tensor):
 # Registration ------------------------------------------------------------------
 @pytest.mark.parametrize("env_id,num_rooms", sorted(PAPER_MULTIROOM_IDS.items()))
 def test_paper_multiroom_registered(env_id, num_rooms):
+    assert env_id in register_minigrid_envs()
     assert env_id in gym.registry
     env = gym.make(env_id)
     inner = env.unwrapped
@@ -63,6 +64,7 @@ def test_paper_multiroom_registered(env_id, num_rooms):
 
 
 def test_registration_is_idempotent():
+    register_minigrid_envs()
     before = gym.registry[MULTIROOM_N3_S4]
     assert register_minigrid_envs() == [MULTIROOM_N3_S4, MULTIROOM_N4_S4]
     assert register_minigrid_envs() == [MULTIROOM_N3_S4, MULTIROOM_N4_S4]
