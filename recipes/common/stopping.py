@@ -124,6 +124,23 @@ def _pickle_module_by_name(module: types.ModuleType):
     return importlib.import_module, (module.__name__,)
 
 
+def sweep_requested(argv: Sequence[str]) -> bool:
+    """Whether a recipe's command line asks Hydra for a sweep (``-m``,
+    ``--multirun`` or ``hydra.mode=MULTIRUN``): only then does a launcher pickle
+    the recipe's task function (:func:`register_sweep_pickling`).
+
+    Examples:
+        >>> sweep_requested(["main.py", "-m", "seed=0,1"])
+        True
+        >>> sweep_requested(["main.py", "seed=0"])
+        False
+    """
+    return any(
+        arg in ("-m", "--multirun") or arg.replace(" ", "") == "hydra.mode=MULTIRUN"
+        for arg in argv[1:]
+    )
+
+
 def register_sweep_pickling(*modules: types.ModuleType) -> None:
     """Lets Hydra's sweep launchers send a recipe's task function to their workers.
 
@@ -137,7 +154,8 @@ def register_sweep_pickling(*modules: types.ModuleType) -> None:
       (a ``ModuleType`` subclass cloudpickle cannot pickle), are pickled by name:
       a ``copyreg`` entry for that type, for the whole process.
 
-    A recipe calls this once, at import, before Hydra launches anything.
+    A recipe calls this once, before Hydra launches a sweep
+    (:func:`sweep_requested`); a single run pickles nothing.
 
     Examples:
         >>> import cloudpickle, torch.utils.deterministic

@@ -58,11 +58,7 @@ from common.checkpoint import RunCounters
 from common.config import validate_ddpg
 from common.evaluation import EVAL_SEED_OFFSET, EpisodeStats, evaluate
 from common.run import TrainingRun
-from common.stopping import register_sweep_pickling
-
-# Sweep launchers pickle this script's task function for their worker processes,
-# where the module beside the script is not importable (submitit, Ray).
-register_sweep_pickling(utils)
+from common.stopping import register_sweep_pickling, sweep_requested
 
 
 @hydra.main(config_path=".", config_name="config", version_base=None)
@@ -249,4 +245,8 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
 
 
 if __name__ == "__main__":
+    if sweep_requested(sys.argv):
+        # Sweep launchers pickle the task function for their worker processes,
+        # where the module beside the script is not importable (submitit, Ray).
+        register_sweep_pickling(utils)
     main()

@@ -62,12 +62,8 @@ from common.minigrid import (
     train_bonus_model,
 )
 from common.run import TrainingRun
-from common.stopping import register_sweep_pickling
+from common.stopping import register_sweep_pickling, sweep_requested
 from common.video import record_minigrid_video
-
-# Sweep launchers pickle this script's task function for their worker processes,
-# where the modules beside the script are not importable (submitit, Ray).
-register_sweep_pickling(utils, common)
 
 
 @hydra.main(config_path=".", config_name="config", version_base=None)
@@ -314,4 +310,8 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
 
 
 if __name__ == "__main__":
+    if sweep_requested(sys.argv):
+        # Sweep launchers pickle the task function for their worker processes,
+        # where the modules beside the script are not importable (submitit, Ray).
+        register_sweep_pickling(utils, common)
     main()
