@@ -24,6 +24,7 @@ from hydra.errors import ConfigCompositionException
 from omegaconf import OmegaConf
 
 import common.config
+from common.bonuses import VAE_VARIANTS as VAE_TRANSFORMS
 from common.config import (
     VAE_VARIANTS,
     DDPGConfig,
@@ -31,7 +32,6 @@ from common.config import (
     validate_ddpg,
     validate_minigrid,
 )
-from common.minigrid import VAE_VARIANTS as VAE_TRANSFORMS
 from common.rundir import RESUMABLE_CHANGES, _flatten
 
 RECIPES = Path(__file__).resolve().parents[1] / "recipes"

@@ -57,6 +57,7 @@ from torchrl_surprise.envs.minigrid import MINIGRID_BACKENDS
 from torchrl_surprise.transforms import NORMALIZATIONS, STOCHASTICITY_LEVELS
 from torchrl_surprise.transforms.vae_surprise import GLOBAL_BONUSES, NOVELD_NOVELTIES
 
+from .bonuses import bonus_choices
 from .rundir import RESUME_MODES
 
 __all__ = [
@@ -66,7 +67,6 @@ __all__ = [
     "DEVICES",
     "EXPLORATION_NOISES",
     "LOGGER_BACKENDS",
-    "MINIGRID_BONUSES",
     "OPTIMIZERS",
     "VAE_VARIANTS",
     "CheckpointConfig",
@@ -89,8 +89,6 @@ __all__ = [
 # an enum-typed field would hand its members to what the recipe builds (a bonus
 # transform's state_dict keeps its normalization), and so into checkpoints, which
 # would then need this module to load.
-MINIGRID_BONUSES: tuple[str, ...] = ("none", "vae", "icm", "rnd", "e3b", "noveld")
-"""``bonus`` of the MiniGrid recipe (rnd: TorchRL's RNDTransform and RNDLoss)."""
 DDPG_BONUSES: tuple[str, ...] = ("none", "vae")
 """``bonus`` of the DDPG recipe."""
 ALGOS: tuple[str, ...] = ("a2c", "ppo")
@@ -135,6 +133,19 @@ HALF_OPEN_UNIT = Rule("in (0, 1]", lambda v: 0 < v <= 1)
 def one_of(choices) -> Rule:
     """A rule for a setting that takes one of ``choices``."""
     return Rule("one of " + ", ".join(repr(c) for c in choices), choices.__contains__)
+
+
+class _Registered:
+    """A rule for ``bonus``: one of the names registered when it is checked
+    (:func:`common.bonuses.bonus_choices`), so a bonus registered after this
+    module is imported is accepted."""
+
+    @property
+    def expected(self) -> str:
+        return one_of(bonus_choices()).expected
+
+    def holds(self, value) -> bool:
+        return value in bonus_choices()
 
 
 RESUME = Rule(
@@ -423,7 +434,7 @@ class MiniGridConfig:
 
     seed: int = required(NON_NEGATIVE)
     """Seed of every generator of the run; >= 0 (NumPy's seeds are)."""
-    bonus: str = required(one_of(MINIGRID_BONUSES))
+    bonus: str = required(_Registered())
     """none, vae, icm, rnd, e3b or noveld."""
     resume: str = required(RESUME)
     """auto, true or false (common.rundir.RESUME_MODES)."""

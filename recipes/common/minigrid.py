@@ -19,47 +19,26 @@ from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
 from torch.distributions import Categorical
 from torchrl.envs import Compose, RewardSum, StepCounter, TransformedEnv
-from torchrl.envs.transforms import RNDTransform
 from torchrl.modules import ActorValueOperator, ProbabilisticActor, ValueOperator
-from torchrl.objectives.rnd import RNDLoss
 from torchrl.objectives.value import GAE
 
+from common.bonuses import BONUSES
 from common.labels import ENVPOOL_SUFFIX
 from torchrl_surprise import (
-    E3BModel,
-    E3BTransform,
-    ICMLoss,
-    ICMModel,
-    ICMTransform,
     IntrinsicValueLoss,
-    InverseDynamicsLoss,
-    NovelDTransform,
-    RNDDistillationLoss,
-    RNDModel,
-    StateVAE,
     TwoStreamAdvantage,
-    VAELoss,
-    VAESurpriseTransform,
 )
 from torchrl_surprise.collectors import (
     ResumableCollector,
     ResumableMultiSyncCollector,
 )
 from torchrl_surprise.envs import make_minigrid_env
-from torchrl_surprise.modules import InverseDynamicsModel
 from torchrl_surprise.transforms import (
-    PrecomputedBonusTransform,
-    VAEEllipticalTransform,
-    VAENegativeELBOTransform,
-    VAENovelDTransform,
-    VAEPosteriorShiftTransform,
     make_coef_schedule,
 )
 from torchrl_surprise.transforms.stochasticity import StochasticityTransform
 
 __all__ = [
-    "VAE_VARIANTS",
-    "vae_variant_kwargs",
     "MiniGridConvTrunk",
     "bonus_update_steps",
     "documented_results",
@@ -76,50 +55,6 @@ __all__ = [
     "shared_trunk",
     "train_bonus_model",
 ]
-
-VAE_VARIANTS = {
-    # the paper's bonus: KL(q(z|s) || N(0, I))
-    "kl": VAESurpriseTransform,
-    # novelty: -ELBO, how badly the VAE explains the state
-    "neg_elbo": VAENegativeELBOTransform,
-    # KL(q(z|s) || q_ref(z|s)): with the reference taken right before the VAE
-    # trains on the rollout (info_gain) or every few updates (lagged_kl)
-    "info_gain": VAEPosteriorShiftTransform,
-    "lagged_kl": VAEPosteriorShiftTransform,
-    # episodic novelty: E3B's elliptical bonus on the VAE's posterior mean
-    "elliptical": VAEEllipticalTransform,
-    # NovelD's novelty difference on first visits, the novelty the VAE's -ELBO
-    "noveld": VAENovelDTransform,
-}
-"""``intrinsic.vae.variant`` -> the transform that computes the VAE bonus."""
-RND_KEY = "rnd_reward"
-
-
-def vae_variant_kwargs(variant: str, vae_cfg) -> dict:
-    """The keyword arguments a VAE variant's transform takes beyond the common
-    ones, read from the ``intrinsic.vae`` section of a config (a mapping).
-
-    Examples:
-        >>> vae_variant_kwargs("elliptical", {"ridge": 0.5})
-        {'ridge': 0.5, 'global_bonus': 'none', 'unit_latent': False, 'start_in_memory': False}
-        >>> vae_variant_kwargs("noveld", {"alpha": 0.25, "novelty": "kl"})
-        {'alpha': 0.25, 'novelty': 'kl'}
-        >>> vae_variant_kwargs("kl", {"ridge": 0.5})
-        {}
-    """
-    if variant == "noveld":
-        return {
-            "alpha": vae_cfg.get("alpha", 0.5),
-            "novelty": vae_cfg.get("novelty", "neg_elbo"),
-        }
-    if variant != "elliptical":
-        return {}
-    return {
-        "ridge": vae_cfg.get("ridge", 0.1),
-        "global_bonus": vae_cfg.get("global_bonus", "none"),
-        "unit_latent": vae_cfg.get("unit_latent", False),
-        "start_in_memory": vae_cfg.get("start_in_memory", False),
-    }
 
 
 def make_env(cfg, num_envs: int, seed: int, bonus: str = "none", rnd=None):
@@ -213,7 +148,11 @@ def make_actor_critic(
 
 
 def make_bonus(cfg, action_spec, bonus: str):
-    """The bonus: (batch transform, loss on the bonus model, env-side transform)."""
+    """The bonus ``bonus`` (a name in :data:`common.bonuses.BONUSES`, or
+    ``"none"``): ``(batch transform, loss on the bonus model, env-side transform
+    or None)``, all ``None`` for ``"none"``."""
+    if bonus == "none":
+        return None, None, None
     icfg = cfg.intrinsic
     schedule = make_coef_schedule(
         icfg.coef, icfg.coef_end, icfg.anneal_frames, icfg.warmup_frames
@@ -227,79 +166,7 @@ def make_bonus(cfg, action_spec, bonus: str):
         # With a separate intrinsic critic the reward stays extrinsic.
         reward_key=None if icfg.intrinsic_critic else "reward",
     )
-    env_side = None
-    if bonus == "vae":
-        vae = StateVAE.for_minigrid(
-            latent_dim=icfg.vae.latent_dim,
-            hidden_dim=icfg.vae.hidden_dim,
-            use_direction=icfg.vae.use_direction,
-        )
-        variant = icfg.vae.get("variant", "kl")
-        common.update(vae_variant_kwargs(variant, icfg.vae))
-        transform = VAE_VARIANTS[variant](vae, **common)
-        inverse = {}
-        if icfg.vae.get("inverse_weight", 0.0) > 0:
-            inverse = dict(
-                inverse_dynamics=InverseDynamicsModel.on_vae(
-                    vae, action_spec.space.n, hidden_dim=icfg.vae.hidden_dim
-                ),
-                inverse_weight=icfg.vae.inverse_weight,
-            )
-        loss = VAELoss(vae, kl_weight=icfg.vae.kl_weight, **inverse)
-    elif bonus == "icm":
-        icm = ICMModel.for_minigrid(
-            num_actions=action_spec.space.n, hidden_dim=icfg.icm.hidden_dim
-        )
-        transform = ICMTransform(icm, **common)
-        loss = ICMLoss(icm, beta=icfg.icm.beta)
-    elif bonus == "e3b":
-        model = E3BModel.for_minigrid(
-            num_actions=action_spec.space.n,
-            embedding_dim=icfg.e3b.embedding_dim,
-            hidden_dim=icfg.e3b.hidden_dim,
-        )
-        transform = E3BTransform(
-            model,
-            ridge=icfg.e3b.ridge,
-            start_in_memory=icfg.e3b.start_in_memory,
-            **common,
-        )
-        loss = InverseDynamicsLoss(model)
-    elif bonus == "noveld":
-        rnd = RNDModel.for_minigrid(
-            embedding_dim=icfg.noveld.embedding_dim,
-            hidden_dim=icfg.noveld.hidden_dim,
-        )
-        transform = NovelDTransform(rnd, alpha=icfg.noveld.alpha, **common)
-        loss = RNDDistillationLoss(rnd)
-    elif bonus == "rnd":
-
-        def net():
-            return nn.Sequential(
-                nn.Flatten(-3),
-                nn.Linear(7 * 7 * 3, icfg.rnd.hidden_dim),
-                nn.ReLU(),
-                nn.Linear(icfg.rnd.hidden_dim, icfg.rnd.hidden_dim),
-                nn.ReLU(),
-                nn.Linear(icfg.rnd.hidden_dim, icfg.rnd.hidden_dim),
-            )
-
-        target, predictor = net(), net()
-        # TorchRL's RNDTransform runs in the env (it has no batch path); its raw
-        # error is then normalised and mixed by the same base as the other bonuses.
-        env_side = RNDTransform(
-            target,
-            predictor,
-            in_keys=["image"],
-            out_keys=[RND_KEY],
-            normalize_reward=False,
-        )
-        transform = PrecomputedBonusTransform(RND_KEY, **common)
-        loss = RNDLoss(predictor, target, update_fraction=icfg.rnd.update_fraction)
-        loss.set_keys(observation=("next", "image"))
-    else:
-        return None, None, None
-    return transform, loss, env_side
+    return BONUSES[bonus].build(cfg, action_spec, common)
 
 
 def inverse_head(bonus_loss) -> nn.Module | None:
@@ -497,10 +364,6 @@ def rollout_metrics(stats, data, bonus_transform=None, bonus_td=None) -> dict:
     return metrics
 
 
-# The attribute of each bonus transform that holds its model.
-_BONUS_MODELS = {"vae": "vae", "icm": "icm", "e3b": "model", "noveld": "rnd"}
-
-
 def load_bonus_model(
     transform, bonus: str, source: str | os.PathLike, inverse_head=None
 ) -> int:
@@ -508,7 +371,8 @@ def load_bonus_model(
 
     Args:
         transform: the bonus transform of this run.
-        bonus (str): ``"vae"``, ``"icm"``, ``"e3b"`` or ``"noveld"``.
+        bonus (str): a bonus whose registry entry names its model
+            (:attr:`common.bonuses.Bonus.model_attr`).
         source: a run directory or its checkpoint file.
         inverse_head: this run's inverse model on the VAE's latent
             (:func:`inverse_head`, ``intrinsic.vae.inverse_weight > 0``), started
@@ -520,10 +384,11 @@ def load_bonus_model(
     """
     from .checkpoint import DamagedCheckpoint, find_checkpoint, load_checkpoint
 
-    if bonus not in _BONUS_MODELS:
+    transferable = [name for name, b in BONUSES.items() if b.model_attr]
+    if bonus not in transferable:
         raise ValueError(
-            "intrinsic.init_from supports bonus "
-            f"{', '.join(_BONUS_MODELS)}, not {bonus!r}."
+            f"intrinsic.init_from supports bonus {', '.join(transferable)}, "
+            f"not {bonus!r}."
         )
     try:
         path = find_checkpoint(source)
@@ -539,13 +404,13 @@ def load_bonus_model(
             f"intrinsic.init_from: {path} was trained with bonus={source_bonus!r}, "
             f"this run has bonus={bonus!r}."
         )
-    prefix = _BONUS_MODELS[bonus] + "."
+    prefix = BONUSES[bonus].model_attr + "."
     weights = {
         k[len(prefix) :]: v
         for k, v in ckpt["bonus_transform"].items()
         if k.startswith(prefix)
     }
-    model = getattr(transform, _BONUS_MODELS[bonus])
+    model = getattr(transform, BONUSES[bonus].model_attr)
     try:
         model.load_state_dict(weights)
     except RuntimeError as err:

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from .bonuses import BONUSES, bonus_sections
 from .checkpoint import (
     CHECKPOINT_NAME,
     KEPT_CHECKPOINTS,
@@ -119,15 +120,11 @@ def _flatten(config: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     return flat
 
 
-BONUS_SECTIONS: tuple[str, ...] = ("vae", "icm", "rnd")
-"""The sections under ``intrinsic`` that configure one bonus each."""
-
-
 def unused_bonus_sections(config: Mapping[str, Any]) -> tuple[str, ...]:
     """The config sections a run with this config does not read: the whole
     ``intrinsic`` section when ``bonus`` is ``"none"``, else the ``intrinsic.<name>``
-    sections of the other bonuses. A changed default there cannot change the run,
-    so resuming it is safe.
+    sections of the other bonuses (:func:`common.bonuses.bonus_sections`). A
+    changed default there cannot change the run, so resuming it is safe.
 
     Examples:
         >>> unused_bonus_sections({"bonus": "icm", "intrinsic": {"vae": {}, "icm": {}}})
@@ -141,10 +138,11 @@ def unused_bonus_sections(config: Mapping[str, Any]) -> tuple[str, ...]:
         return ()
     if bonus == "none":
         return ("intrinsic",)
+    own = BONUSES[bonus].section if bonus in BONUSES else bonus
     return tuple(
         f"intrinsic.{name}"
         for name, value in intrinsic.items()
-        if name in BONUS_SECTIONS and name != bonus and isinstance(value, Mapping)
+        if name in bonus_sections() and name != own and isinstance(value, Mapping)
     )
 
 

@@ -590,8 +590,8 @@ def load_bonus_transform(run_dir_or_ckpt: str | os.PathLike):
         >>> type(transform).__name__, frames, transform.frozen
         ('VAESurpriseTransform', 128, True)
     """
+    from common.bonuses import VAE_VARIANTS, vae_variant_kwargs
     from common.checkpoint import find_checkpoint, load_checkpoint
-    from common.minigrid import VAE_VARIANTS, vae_variant_kwargs
     from torchrl_surprise import StateVAE
 
     path = Path(run_dir_or_ckpt)

@@ -166,11 +166,10 @@ class OneDNNLinear(nn.Linear):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         weight, bias = self.weight, self.bias
-        op = _onednn_linear()
+        # torch.compile's CPU backend lowers this op for frozen weights only.
+        op = None if torch.compiler.is_compiling() else _onednn_linear()
         if (
             op is None
-            # torch.compile's CPU backend lowers this op for frozen weights only.
-            or torch.compiler.is_compiling()
             or x.device.type != "cpu"
             or x.dtype != torch.float32
             or weight.dtype != torch.float32
