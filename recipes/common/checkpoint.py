@@ -35,6 +35,7 @@ from torchrl.checkpoint import (
     StateDictCheckpointAdapter,
 )
 
+from .errors import UserMistake
 from .files import (
     free_bytes,
     is_write_error,
@@ -120,7 +121,7 @@ def load_legacy(path: Path) -> dict[str, Any]:
     return state
 
 
-class DamagedCheckpoint(ValueError):
+class DamagedCheckpoint(UserMistake, ValueError):
     """A checkpoint file that cannot be read: empty, cut short, or overwritten.
 
     The message names the file, what is wrong with it, and what to do: use the

@@ -43,6 +43,7 @@ Examples:
 # its workers (common.stopping.register_sweep_pickling), where string annotations
 # could not be evaluated in a module they cannot import.
 import dataclasses
+import functools
 import math
 import types
 import typing
@@ -58,6 +59,7 @@ from torchrl_surprise.transforms import NORMALIZATIONS, STOCHASTICITY_LEVELS
 from torchrl_surprise.transforms.vae_surprise import GLOBAL_BONUSES, NOVELD_NOVELTIES
 
 from .bonuses import bonus_choices
+from .errors import ConfigError
 from .rundir import RESUME_MODES
 
 __all__ = [
@@ -648,6 +650,21 @@ def check_settings(cfg, schema: type, prefix: str = "") -> None:
         _check_value(key, value, kind, rule, optional)
 
 
+def _refusing(validate):
+    """``validate`` with its ``ValueError`` raised as a :class:`ConfigError`, the
+    user's mistake (:func:`common.errors.report_mistakes` prints it alone)."""
+
+    @functools.wraps(validate)
+    def checked(cfg) -> None:
+        try:
+            validate(cfg)
+        except ValueError as err:
+            raise ConfigError(str(err)) from None
+
+    return checked
+
+
+@_refusing
 def validate_minigrid(cfg) -> None:
     """Refuses a MiniGrid config the recipe cannot run, before anything is built.
 
@@ -655,7 +672,8 @@ def validate_minigrid(cfg) -> None:
     then the rules between settings.
 
     Raises:
-        ValueError: naming the setting by its full key and the value expected.
+        ConfigError: a ``ValueError`` naming the setting by its full key and the
+            value expected.
     """
     check_settings(cfg, MiniGridConfig)
     workers, num_envs = cfg.collector.workers, cfg.env.num_envs
@@ -716,6 +734,7 @@ def validate_minigrid(cfg) -> None:
             )
 
 
+@_refusing
 def validate_ddpg(cfg) -> None:
     """Refuses a DDPG config the recipe cannot run, before anything is built.
 
@@ -723,7 +742,8 @@ def validate_ddpg(cfg) -> None:
     the rules between settings.
 
     Raises:
-        ValueError: naming the setting by its full key and the value expected.
+        ConfigError: a ``ValueError`` naming the setting by its full key and the
+            value expected.
     """
     check_settings(cfg, DDPGConfig)
     intrinsic, collector = cfg.intrinsic, cfg.collector

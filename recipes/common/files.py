@@ -14,6 +14,8 @@ import shutil
 import uuid
 from pathlib import Path
 
+from .errors import UserMistake
+
 _WRITE_ERRORS = {
     errno.ENOSPC: "no space left on device",
     errno.EDQUOT: "disk quota exceeded",
@@ -29,7 +31,7 @@ _WRITE_ERRORS = {
 _NEARLY_FULL = 64 * 2**20
 
 
-class RunWriteError(OSError):
+class RunWriteError(UserMistake, OSError):
     """A file of a run could not be written: the message names the file, the
     cause (``no space left on device``, ``permission denied``) and what is left as
     it was. ``errno`` is the cause's (``None`` when unknown).

@@ -23,6 +23,7 @@ from torchrl.modules import ActorValueOperator, ProbabilisticActor, ValueOperato
 from torchrl.objectives.value import GAE
 
 from common.bonuses import BONUSES
+from common.errors import ConfigError
 from common.labels import ENVPOOL_SUFFIX
 from torchrl_surprise import (
     IntrinsicValueLoss,
@@ -58,13 +59,21 @@ __all__ = [
 
 
 def make_env(cfg, num_envs: int, seed: int, bonus: str = "none", rnd=None):
-    """MiniGrid as one batched TorchRL env, with noise, episode stats (and RND)."""
-    env = make_minigrid_env(
-        cfg.env.name,
-        num_envs=num_envs,
-        backend=cfg.env.backend,
-        num_threads=cfg.env.num_threads,
-    )
+    """MiniGrid as one batched TorchRL env, with noise, episode stats (and RND).
+
+    Raises:
+        ConfigError: ``env.name`` is not a task of ``env.backend`` (the factory's
+            message names the close ids).
+    """
+    try:
+        env = make_minigrid_env(
+            cfg.env.name,
+            num_envs=num_envs,
+            backend=cfg.env.backend,
+            num_threads=cfg.env.num_threads,
+        )
+    except ValueError as err:
+        raise ConfigError(f"env.name={cfg.env.name}: {err}") from None
     transforms = []
     if cfg.env.stochasticity:
         # Transforms are not seeded by env.set_seed in TorchRL 0.14: seed it here.

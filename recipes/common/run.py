@@ -8,10 +8,12 @@ curve (:mod:`common.evaluation`) around it.
 
 from __future__ import annotations
 
+import contextlib
 import os
+import shutil
 import sys
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -22,10 +24,11 @@ from .checkpoint import (
     RunCounters,
     holds_component,
 )
+from .errors import UserMistake
 from .evaluation import plot_run_curves
 from .labels import run_labels
 from .loggers import LoggerState, end_logger_run, get_run_logger
-from .rundir import RunDirInUse, RunLock, prepare_run
+from .rundir import RunDirInUse, RunLock, prepare_run, write_hydra_record
 from .stopping import (
     RECIPES_DIR,
     StopSignal,
@@ -102,6 +105,8 @@ class TrainingRun:
         self.run_dir = Path(run_dir)
         self.resumed_from = None
         self._skipped = ""
+        # made for this launch (Hydra makes it empty): abandon() removes it
+        self._fresh = not self.run_dir.is_dir() or not any(self.run_dir.iterdir())
         try:
             # this process owns the run directory until it ends
             self._lock = RunLock(self.run_dir)
@@ -115,7 +120,7 @@ class TrainingRun:
         try:
             source, self.resumed_from = prepare_run(cfg, self.run_dir)
         except BaseException:
-            self._lock.release()  # refused: the directory is free again
+            self.abandon()  # refused: the directory is as it was, and free
             raise
         self._source = source if self.resumed_from else None
         self.logger = None
@@ -124,6 +129,26 @@ class TrainingRun:
         self._checkpoint: RunCheckpoint | None = None
         self._stop: StopSignal | None = None
         self._on_exit: Sequence[Any] = ()
+
+    def abandon(self) -> None:
+        """Gives the run directory up before the run started (:meth:`restore`),
+        for a launch refused on a mistake: the lock is released and a directory
+        this launch made (absent or empty before it) is removed with what was
+        written in it, so a refused launch leaves nothing behind."""
+        self._lock.release()
+        if self._fresh and self.run_dir.is_dir():
+            shutil.rmtree(self.run_dir, ignore_errors=True)
+
+    @contextlib.contextmanager
+    def starting(self) -> Iterator[None]:
+        """Where a recipe builds its run, up to :meth:`restore`: a user's mistake
+        raised there (an unknown env, a model that does not fit a transfer)
+        gives the run directory up (:meth:`abandon`) before it propagates."""
+        try:
+            yield
+        except UserMistake:
+            self.abandon()
+            raise
 
     def nothing_to_do(self) -> bool:
         """Whether the checkpoint already holds ``collector.total_frames`` frames
@@ -159,6 +184,8 @@ class TrainingRun:
                 (parallel bars garble each other; the logs hold the progress).
         """
         cfg = self.cfg
+        # the run starts: Hydra's record of it is this launch's
+        write_hydra_record(self.run_dir, cfg)
         self.counters = components["progress"]
         if "logger" in components:
             raise KeyError("'logger' is the run's own: the logger's state.")

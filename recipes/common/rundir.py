@@ -23,6 +23,7 @@ from .checkpoint import (
     is_legacy,
     verify_archive,
 )
+from .errors import MissingRunFile, ResumeRefused, RunAlreadyThere, UserMistake
 from .files import remove_path, write_atomically
 from .scalar_logs import scalar_log_files, truncate_scalar_logs
 from .status import STATUS_NAME, read_run_status
@@ -49,6 +50,7 @@ def _remove_leftover_temporaries(run_dir: Path) -> None:
         "..checkpoint.*",
         f".{STATUS_NAME}.*",
         ".config_resolved.yaml.*",
+        f"{HYDRA_RECORD}/.*.tmp",
     )
     for pattern in patterns:
         for path in run_dir.glob(pattern):
@@ -226,7 +228,7 @@ def prepare_run(cfg, run_dir: str | os.PathLike) -> tuple[Path, dict[str, Any] |
         ckpt_path = None
     if ckpt_path is not None:
         if mode == "false":
-            raise FileExistsError(
+            raise RunAlreadyThere(
                 f"{run_dir} already holds a checkpoint: pass resume=auto to continue "
                 "it, or another hydra.run.dir to start a new run."
             )
@@ -242,7 +244,7 @@ def prepare_run(cfg, run_dir: str | os.PathLike) -> tuple[Path, dict[str, Any] |
             allowed=RESUMABLE_CHANGES + unused_bonus_sections(info["config"]),
         )
         if diffs:
-            raise ValueError(
+            raise ResumeRefused(
                 f"Cannot resume {run_dir}: the experiment changed ("
                 + "; ".join(diffs)
                 + "). Only these settings may change on resume: "
@@ -251,7 +253,7 @@ def prepare_run(cfg, run_dir: str | os.PathLike) -> tuple[Path, dict[str, Any] |
             )
         missing = _missing_scalar_logs(run_dir, info)
         if missing and not cfg.get("resume_without_logs", False):
-            raise FileNotFoundError(
+            raise MissingRunFile(
                 f"Cannot resume {run_dir}: its checkpoint is at {info['frames']} "
                 "frames but scalar logs it wrote before are missing: "
                 + ", ".join(missing)
@@ -263,7 +265,7 @@ def prepare_run(cfg, run_dir: str | os.PathLike) -> tuple[Path, dict[str, Any] |
             )
         truncate_scalar_logs(run_dir / "logs", info["frames"])
     elif mode == "true":
-        raise FileNotFoundError(
+        raise MissingRunFile(
             f"resume=true but there is no checkpoint in {run_dir}; pass the run "
             "directory of the run to resume as hydra.run.dir=<dir>."
         )
@@ -281,7 +283,7 @@ LOCK_NAME = "run.lock"
 """The lock file of a run directory: ``<pid> <host>`` of the process that owns it."""
 
 
-class RunDirInUse(RuntimeError):
+class RunDirInUse(UserMistake, RuntimeError):
     """Another live process owns the run directory (:class:`RunLock`)."""
 
 
@@ -344,3 +346,40 @@ class RunLock:
             self._fd = None
 
     __del__ = release
+
+
+HYDRA_RECORD = ".hydra"
+"""Hydra's record of a run in its directory (``config.yaml``, ``hydra.yaml``,
+``overrides.yaml``, what Hydra writes with ``hydra.output_subdir=.hydra``)."""
+
+
+def write_hydra_record(run_dir: str | os.PathLike, cfg) -> Path | None:
+    """Writes Hydra's record of the current Hydra run into ``<run_dir>/.hydra``.
+
+    The recipes set ``hydra.output_subdir: null``: Hydra would write it when a
+    launch starts, before the run directory's lock is taken, so a launch refused
+    there (the directory in use, a changed experiment) would rewrite the running
+    run's record. The run writes it once it holds the lock and its checks passed
+    (:meth:`common.run.TrainingRun.restore`). Nothing outside a Hydra app.
+
+    Returns:
+        The folder written, or ``None`` outside a Hydra app.
+    """
+    from omegaconf import OmegaConf
+
+    try:
+        from hydra.core.hydra_config import HydraConfig
+
+        hydra_cfg = HydraConfig.get()
+    except (ImportError, ValueError):
+        return None
+    folder = Path(run_dir) / HYDRA_RECORD
+    folder.mkdir(parents=True, exist_ok=True)
+    records = {
+        "config.yaml": OmegaConf.to_yaml(cfg),
+        "hydra.yaml": OmegaConf.to_yaml(OmegaConf.create({"hydra": hydra_cfg})),
+        "overrides.yaml": OmegaConf.to_yaml(list(hydra_cfg.overrides.task)),
+    }
+    for name, text in records.items():
+        write_atomically(folder / name, text)
+    return folder

@@ -7,10 +7,11 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import UserMistake
 from .files import write_atomically
 
 
-class DamagedLog(ValueError):
+class DamagedLog(UserMistake, ValueError):
     """A scalar log with a line that is not a ``step,value`` row; the message
     names the file and the line.
 

@@ -34,7 +34,9 @@ from __future__ import annotations
 
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 # recipes/ holds what the recipes share (common) and the results tools (results).
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -46,6 +48,7 @@ import utils  # the learners beside this script
 import common
 from common.checkpoint import RunCounters
 from common.config import validate_minigrid
+from common.errors import ConfigError, report_mistakes
 from common.evaluation import EVAL_SEED_OFFSET, EpisodeStats, evaluate
 from common.labels import task_label
 from common.minigrid import (
@@ -66,23 +69,64 @@ from common.stopping import register_sweep_pickling, sweep_requested
 from common.video import record_minigrid_video
 
 
+@dataclass
+class Training:
+    """What a run is built of (:func:`build`) and what its loop (:func:`train`) uses."""
+
+    env: Any
+    eval_env: Any
+    eval_seed: int
+    bonus_transform: Any
+    bonus_loss: Any
+    env_side: Any
+    model: Any
+    policy: Any
+    trunk: Any
+    loss_module: Any
+    advantage: Any
+    int_value_loss: Any
+    params: list
+    optim: Any
+    bonus_optim: Any
+    buffer: Any
+    reward_clip: Any
+    stats: EpisodeStats
+    progress: RunCounters
+    collector: Any
+
+
 @hydra.main(config_path=".", config_name="config", version_base=None)
-def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
+@report_mistakes
+def main(cfg) -> None:
+    """The run, in the steps the module's docstring numbers: checks, build, the
+    loop of updates, the end (curve, video, the committed results beside it)."""
+    device = check(cfg)
+    # Seeds, resume checks, the checkpoint to resume from (common/run.py)
+    run = TrainingRun(cfg, cfg.algo.name)
+    if run.nothing_to_do():
+        return
+    with run.starting():  # a mistake before the run starts leaves nothing behind
+        training = build(cfg, run, device)
+    frames, fps = train(cfg, run, training)
+    finish(cfg, run, training, frames, fps)
+
+
+def check(cfg):
+    """Refuses a config the recipe cannot run, before anything is built; returns
+    the device of the policy, critics and bonus model (the envs step on the CPU)."""
     validate_minigrid(cfg)
-    # The policy, critics and bonus model's device (cuda without a GPU: refused
-    # here, before anything is built); the envs step on the CPU.
     device = utils.resolve_device(cfg.device)
     if cfg.bonus == "rnd" and device.type != "cpu":
-        raise ValueError(
+        raise ConfigError(
             "bonus=rnd runs its networks inside the envs (TorchRL's RNDTransform), "
             f"on the CPU: run it with device=cpu (device={cfg.device} gave {device})."
         )
-    algo = cfg.algo.name
-    # Seeds, resume checks, the checkpoint to resume from (common/run.py)
-    run = TrainingRun(cfg, algo)
-    if run.nothing_to_do():
-        return
+    return device
 
+
+def build(cfg, run: TrainingRun, device) -> Training:
+    """Envs, the bonus, the actor-critic, losses, optimisers and the collector,
+    in the order they draw random numbers; then the checkpoint restored."""
     # Create envs and the bonus
     env = make_env(cfg, cfg.env.num_envs, seed=cfg.seed)
     bonus_transform, bonus_loss, env_side = make_bonus(cfg, env.action_spec, cfg.bonus)
@@ -105,11 +149,11 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
     eval_seed = cfg.seed + EVAL_SEED_OFFSET
     eval_env = make_env(cfg, cfg.eval.num_envs, seed=eval_seed)
 
-    # Create the actor-critic
+    # Create the actor-critic; PPO's policy records the log-probability of each
+    # action it takes: its ratio.
     use_int_critic = cfg.intrinsic.intrinsic_critic and bonus_transform is not None
-    # PPO's policy records the log-probability of each action it takes: its ratio.
     model, int_value = make_actor_critic(
-        env.action_spec, use_int_critic, return_log_prob=algo == "ppo"
+        env.action_spec, use_int_critic, return_log_prob=cfg.algo.name == "ppo"
     )
     model.to(device)
     if int_value is not None:
@@ -117,7 +161,6 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
     # The policy in one call per env step (same layers, same draws: utils); it
     # takes the envs' CPU observations in evaluation and videos.
     policy = utils.SampledCategoricalPolicy(model.get_policy_operator(), device)
-    trunk = shared_trunk(model)
 
     # Create losses and optimisers
     loss_module, advantage, int_value_loss = utils.make_loss(
@@ -134,35 +177,52 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         # fused: the same Adam update in one kernel (faster VAE steps on CPU)
         bonus_optim = torch.optim.Adam(bonus_params, lr=cfg.intrinsic.lr, fused=True)
     buffer = utils.make_minibatch_buffer(cfg, device)
-    reward_clip = utils.make_reward_clip(cfg)
 
-    stats = EpisodeStats(window=cfg.logger.episode_window)
-    progress = RunCounters(
-        frames=0,
-        next_eval=cfg.eval.interval_frames,
-        next_ckpt=cfg.checkpoint.interval_frames,
-    )
-    # Create the collector: it holds the episodes in progress; it runs to
-    # total_frames from its own saved frame count, so it is built for the whole
-    # run. With
-    # collector.workers > 1, worker processes step the envs synchronously, each
-    # rollout with the policy's weights after the last update (synced before each
-    # batch); the bonus and the updates stay in this process.
+    # Create the collector: it holds the episodes in progress and runs to
+    # total_frames from its own saved frame count. With collector.workers > 1,
+    # worker processes step the envs synchronously, each rollout with the
+    # policy's weights after the last update; the bonus and the updates stay here.
     collector = make_collector(
         env, policy, cfg, total_frames=cfg.collector.total_frames, device=device
+    )
+    training = Training(
+        env=env,
+        eval_env=eval_env,
+        eval_seed=eval_seed,
+        bonus_transform=bonus_transform,
+        bonus_loss=bonus_loss,
+        env_side=env_side,
+        model=model,
+        policy=policy,
+        trunk=shared_trunk(model),
+        loss_module=loss_module,
+        advantage=advantage,
+        int_value_loss=int_value_loss,
+        params=params,
+        optim=optim,
+        bonus_optim=bonus_optim,
+        buffer=buffer,
+        reward_clip=utils.make_reward_clip(cfg),
+        stats=EpisodeStats(window=cfg.logger.episode_window),
+        progress=RunCounters(
+            frames=0,
+            next_eval=cfg.eval.interval_frames,
+            next_ckpt=cfg.checkpoint.interval_frames,
+        ),
+        collector=collector,
     )
     # What a checkpoint holds, saved and loaded from this one mapping (with the
     # random generators, restored last); restored when resuming.
     run.restore(
         {
-            "progress": progress,
+            "progress": training.progress,
             "model": model,
             "int_value": int_value,
             "optim": optim,
             "bonus_transform": bonus_transform,
             "bonus_optim": bonus_optim,
             "collector": collector,
-            "stats": stats,
+            "stats": training.stats,
             # PPO: the minibatch order of the next update's first epoch, drawn already
             "minibatch_sampler": None if buffer is None else buffer.sampler,
             # intrinsic.vae.inverse_weight > 0: the inverse head on the VAE's latent
@@ -171,85 +231,48 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         },
         on_exit=[collector.shutdown],
     )
-    frames = progress.frames
+    return training
+
+
+def train(cfg, run: TrainingRun, t: Training) -> tuple[int, float]:
+    """The loop of updates (steps 1-5); returns the frames done and frames/s."""
+    frames = t.progress.frames
     # CPU seconds of this process (all its threads) in the loop: frames per CPU
     # second are what a shared machine's load moves least (time/fps_cpu). Not
     # the collector's worker processes' (collector.workers > 1): there the envs
     # step elsewhere and time/fps_cpu overstates the run's frames per CPU second.
     cpu_start = time.process_time()
     variant = cfg.intrinsic.vae.variant if cfg.bonus == "vae" else None
-    logged_losses = utils.LOGGED_LOSSES[algo]
-
-    # Main loop
-    for data in collector:
+    fps = 0.0
+    # Step 1: the collector's batch
+    for data in t.collector:
         frames += data.numel()
         iteration = frames // data.numel() - 1
-        stats.update(data)
+        t.stats.update(data)
         # intrinsic.update_steps on every intrinsic.update_every-th batch, else 0
         # (always 0 for a frozen transferred model, finetune=false).
         bonus_steps = bonus_update_steps(cfg, iteration)
-
         if variant == "info_gain":
             # The bonus is the posterior shift of this batch's VAE update: the VAE
             # trains first (step 5 comes before step 2).
-            bonus_transform.snapshot()
+            t.bonus_transform.snapshot()
             bonus_td = train_bonus_model(
-                bonus_loss, bonus_optim, data, bonus_steps, env_side
+                t.bonus_loss, t.bonus_optim, data, bonus_steps, t.env_side
             )
-        # Step 2: the bonus of the whole rollout, with the bonus model as it was
-        # during it.
-        with torch.no_grad():
-            if bonus_transform is not None:
-                data = bonus_transform(data)
-            if reward_clip is not None:
-                data = reward_clip(data)
-            # Step 3: advantages and value targets, once: GAE on the (mixed)
-            # reward, or the two streams (TwoStreamAdvantage).
-            data = advantage(data)
-            if algo == "a2c" and cfg.loss.normalize_advantage:
-                data = utils.standardize_advantage(
-                    data, loss_module.tensor_keys.advantage
-                )
-
-        # Step 4: the learner's update, on the whole batch (A2C) or on epochs of
-        # shuffled minibatches (PPO).
-        minibatch_logs = []
-        for batch in utils.minibatches(data, buffer, cfg.loss.epochs):
-            # The shared trunk once, with gradients: the losses' heads read its
-            # features.
-            batch = trunk(batch)
-            loss_td = loss_module(batch)
-            loss = (
-                loss_td["loss_objective"]
-                + loss_td["loss_critic"]
-                + loss_td["loss_entropy"]
-            )
-            logs = loss_td.select(*logged_losses).detach()
-            if int_value_loss is not None:
-                loss_int = int_value_loss(batch)["loss_critic_int"]
-                loss = loss + loss_int
-                logs["loss_critic_int"] = loss_int.detach()
-            optim.zero_grad()
-            loss.backward()
-            logs["grad_norm"] = torch.nn.utils.clip_grad_norm_(
-                params, cfg.optim.max_grad_norm
-            )
-            optim.step()
-            minibatch_logs.append(logs)
-        logs = torch.stack(minibatch_logs).apply(lambda x: x.mean(), batch_size=[])
-
+        data = bonus_and_advantage(cfg, t, data)  # steps 2 and 3
+        logs = learner_update(cfg, t, data)  # step 4
         # Step 5: train the bonus model on the states of this rollout.
         if variant != "info_gain":
             bonus_td = train_bonus_model(
-                bonus_loss, bonus_optim, data, bonus_steps, env_side
+                t.bonus_loss, t.bonus_optim, data, bonus_steps, t.env_side
             )
         if variant == "lagged_kl" and iteration % cfg.intrinsic.vae.lag_updates == 0:
-            bonus_transform.snapshot()
+            t.bonus_transform.snapshot()
 
         # Logging
         fps = run.per_second(frames - run.start_frames)
         if iteration % cfg.logger.log_interval == 0:
-            metrics = rollout_metrics(stats, data, bonus_transform, bonus_td)
+            metrics = rollout_metrics(t.stats, data, t.bonus_transform, bonus_td)
             metrics.update({f"train/{k}": v.item() for k, v in logs.items()})
             metrics["time/fps"] = fps
             metrics["time/fps_cpu"] = (frames - run.start_frames) / max(
@@ -257,32 +280,88 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
             )
             run.log(metrics, step=frames)
             run.progress_bar.set_postfix(
-                fps=f"{fps:.0f}", ret=f"{stats.mean_return:.3f}"
+                fps=f"{fps:.0f}", ret=f"{t.stats.mean_return:.3f}"
             )
-
-        # Evaluation
-        progress.frames = frames
-        if frames >= progress.next_eval:
-            progress.next_eval += cfg.eval.interval_frames
-            model.eval()
-            result = evaluate(
-                eval_env,
-                policy,
-                cfg.eval.episodes,
-                seed=eval_seed,
-                deterministic=cfg.eval.deterministic,
-            )
-            model.train()
-            run.log(
-                {
-                    "eval/episode_return": result.mean_return,
-                    "eval/success_rate": result.success_rate,
-                },
-                step=frames,
-            )
+        t.progress.frames = frames
+        maybe_evaluate(cfg, run, t, frames)
         # Progress, periodic checkpoint, stop on a signal (common/run.py)
         run.after_update()
+    return frames, fps
 
+
+def bonus_and_advantage(cfg, t: Training, data):
+    """Steps 2 and 3: the bonus of the whole rollout, with the bonus model as it
+    was during it, then the advantages and value targets, once: GAE on the
+    (mixed) reward, or the two streams (TwoStreamAdvantage)."""
+    with torch.no_grad():
+        if t.bonus_transform is not None:
+            data = t.bonus_transform(data)
+        if t.reward_clip is not None:
+            data = t.reward_clip(data)
+        data = t.advantage(data)
+        if cfg.algo.name == "a2c" and cfg.loss.normalize_advantage:
+            data = utils.standardize_advantage(
+                data, t.loss_module.tensor_keys.advantage
+            )
+    return data
+
+
+def learner_update(cfg, t: Training, data):
+    """Step 4: the learner's update, on the whole batch (A2C) or on epochs of
+    shuffled minibatches (PPO); returns the means of its logged losses."""
+    minibatch_logs = []
+    for batch in utils.minibatches(data, t.buffer, cfg.loss.epochs):
+        # The shared trunk once, with gradients: the losses' heads read its
+        # features.
+        batch = t.trunk(batch)
+        loss_td = t.loss_module(batch)
+        loss = (
+            loss_td["loss_objective"] + loss_td["loss_critic"] + loss_td["loss_entropy"]
+        )
+        logs = loss_td.select(*utils.LOGGED_LOSSES[cfg.algo.name]).detach()
+        if t.int_value_loss is not None:
+            loss_int = t.int_value_loss(batch)["loss_critic_int"]
+            loss = loss + loss_int
+            logs["loss_critic_int"] = loss_int.detach()
+        t.optim.zero_grad()
+        loss.backward()
+        logs["grad_norm"] = torch.nn.utils.clip_grad_norm_(
+            t.params, cfg.optim.max_grad_norm
+        )
+        t.optim.step()
+        minibatch_logs.append(logs)
+    return torch.stack(minibatch_logs).apply(lambda x: x.mean(), batch_size=[])
+
+
+def maybe_evaluate(cfg, run: TrainingRun, t: Training, frames: int) -> None:
+    """Every ``eval.interval_frames``: the policy on the evaluation envs, on
+    extrinsic reward only."""
+    if frames < t.progress.next_eval:
+        return
+    t.progress.next_eval += cfg.eval.interval_frames
+    t.model.eval()
+    result = evaluate(
+        t.eval_env,
+        t.policy,
+        cfg.eval.episodes,
+        seed=t.eval_seed,
+        deterministic=cfg.eval.deterministic,
+    )
+    t.model.train()
+    run.log(
+        {
+            "eval/episode_return": result.mean_return,
+            "eval/success_rate": result.success_rate,
+        },
+        step=frames,
+    )
+
+
+def finish(cfg, run: TrainingRun, t: Training, frames: int, fps: float) -> None:
+    """The final checkpoint and learning curve, the video, and what the committed
+    results measured on this task at this budget."""
+    algo = cfg.algo.name
+    stats = t.stats
     run.finish(
         f"{frames} frames, {stats.episodes} episodes, last "
         f"{cfg.logger.episode_window}-episode mean return {stats.mean_return:.3f}, "
@@ -295,7 +374,7 @@ def main(cfg) -> None:  # noqa: C901 (one readable loop, as TorchRL's recipes)
         # The final policy on the evaluation's first episodes, as a GIF (and to a
         # logger that shows videos); torch's generators are left as they were.
         video = record_minigrid_video(
-            cfg, policy, run.run_dir, frames, seed=eval_seed, logger=run.logger
+            cfg, t.policy, run.run_dir, frames, seed=t.eval_seed, logger=run.logger
         )
         print(f"Video: {video}")
     measured = documented_results_message(
