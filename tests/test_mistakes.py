@@ -1,0 +1,142 @@
+"""A user's mistake is one message: what is wrong, where, what to do; no
+traceback, exit status 2, and a launch refused before its run starts leaves
+nothing behind (nor changes a run directory that holds a run)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from _recipe_run import shared_run
+
+ROOT = Path(__file__).resolve().parents[1]
+MAIN = ROOT / "recipes" / "minigrid" / "main.py"
+DDPG_MAIN = ROOT / "recipes" / "ddpg_mujoco" / "main.py"
+TINY = [
+    "collector.total_frames=128",
+    "env.num_envs=4",
+    "collector.frames_per_env=8",
+    "eval.interval_frames=128",
+    "eval.episodes=2",
+    "eval.num_envs=2",
+    "checkpoint.interval_frames=128",
+]
+
+
+def launch(main: Path, run_dir: Path, *overrides: str, env=None):
+    cmd = [sys.executable, str(main), f"hydra.run.dir={run_dir}", *overrides]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env)
+
+
+def assert_one_message(proc, *words: str) -> str:
+    """``proc`` exited 2 with one ``Error:`` line naming ``words``, no traceback."""
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    assert "Traceback" not in proc.stderr, proc.stderr[-3000:]
+    errors = [line for line in proc.stderr.splitlines() if line.startswith("Error:")]
+    assert len(errors) == 1, proc.stderr[-3000:]
+    missing = [word for word in words if word not in errors[0]]
+    assert not missing, f"{errors[0]!r} does not name {missing}"
+    return errors[0]
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory):
+    """A finished tiny run, copied by each test that changes it."""
+
+    def make(run_dir: Path):
+        proc = launch(MAIN, run_dir, *TINY)
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        return proc
+
+    return shared_run(tmp_path_factory, "mistakes_run", make).path
+
+
+def snapshot(run_dir: Path) -> dict[str, bytes]:
+    # run.lock names the last process that took the lock (for the message that
+    # refuses another); everything else must stay as it was
+    return {
+        p.relative_to(run_dir).as_posix(): p.read_bytes()
+        for p in sorted(run_dir.rglob("*"))
+        if p.is_file() and p.name != "run.lock"
+    }
+
+
+@pytest.mark.parametrize(
+    "main, override, words",
+    [
+        (MAIN, "intrinsic.coef_end=nan", ["intrinsic.coef_end", "nan"]),
+        (MAIN, "optim.lr=inf", ["optim.lr", "inf"]),
+        (MAIN, "env.backend=foo", ["env.backend", "'foo'"]),
+        (MAIN, "bonus=nosuchbonus", ["bonus", "'e3b'", "nosuchbonus"]),
+        (MAIN, "env.name=NoSuchEnv-v0", ["env.name=NoSuchEnv-v0", "no MiniGrid task"]),
+        (DDPG_MAIN, "optim.actor_lr=-1", ["optim.actor_lr", "-1"]),
+    ],
+)
+def test_a_bad_setting_is_one_message_and_leaves_no_file(
+    tmp_path, main, override, words
+):
+    run_dir = tmp_path / "run"
+    overrides = TINY if main == MAIN else []
+    assert_one_message(launch(main, run_dir, *overrides, override), *words)
+    assert not run_dir.exists(), sorted(os.listdir(run_dir))
+
+
+def test_full_hydra_error_keeps_the_traceback(tmp_path):
+    env = {**os.environ, "HYDRA_FULL_ERROR": "1"}
+    proc = launch(MAIN, tmp_path / "run", "optim.lr=inf", env=env)
+    assert proc.returncode != 0
+    assert "Traceback" in proc.stderr and "ConfigError" in proc.stderr
+
+
+def test_a_changed_experiment_is_one_message_and_changes_nothing(
+    tmp_path, finished_run
+):
+    run_dir = tmp_path / "run"
+    shutil.copytree(finished_run, run_dir)
+    before = snapshot(run_dir)
+    proc = launch(MAIN, run_dir, *TINY, "bonus=icm", "intrinsic.coef=0.9")
+    assert_one_message(proc, "experiment changed", "bonus: 'vae' -> 'icm'")
+    assert snapshot(run_dir) == before  # .hydra/overrides.yaml included
+
+
+def test_a_damaged_checkpoint_is_one_message_and_changes_nothing(
+    tmp_path, finished_run
+):
+    run_dir = tmp_path / "run"
+    shutil.copytree(finished_run, run_dir)
+    checkpoint = run_dir / "checkpoint.torchrl"
+    checkpoint.write_bytes(checkpoint.read_bytes()[:1000])
+    before = snapshot(run_dir)
+    proc = launch(MAIN, run_dir, *TINY, "collector.total_frames=256")
+    assert_one_message(proc, str(checkpoint), "is damaged")
+    assert snapshot(run_dir) == before
+
+
+def test_a_run_dir_in_use_is_one_message_and_changes_nothing(tmp_path, finished_run):
+    run_dir = tmp_path / "run"
+    shutil.copytree(finished_run, run_dir)
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            f"import sys, time; sys.path.insert(0, {str(ROOT / 'recipes')!r}); "
+            "from common.rundir import RunLock; "
+            f"lock = RunLock({str(run_dir)!r}); print('held', flush=True); "
+            "time.sleep(300)",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        before = snapshot(run_dir)
+        proc = launch(MAIN, run_dir, *TINY, "bonus=icm")
+        assert_one_message(proc, str(run_dir), f"process {holder.pid}")
+        assert snapshot(run_dir) == before  # Hydra's record of the run included
+    finally:
+        holder.kill()
+        holder.wait()
