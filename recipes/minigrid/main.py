@@ -80,6 +80,7 @@ class Training:
     bonus_loss: Any
     env_side: Any
     model: Any
+    int_value: Any
     policy: Any
     trunk: Any
     loss_module: Any
@@ -129,23 +130,7 @@ def build(cfg, run: TrainingRun, device) -> Training:
     in the order they draw random numbers; then the checkpoint restored."""
     # Create envs and the bonus
     env = make_env(cfg, cfg.env.num_envs, seed=cfg.seed)
-    bonus_transform, bonus_loss, env_side = make_bonus(cfg, env.action_spec, cfg.bonus)
-    if env_side is not None:
-        env.append_transform(env_side)
-    if cfg.intrinsic.init_from and not run.resumed_from:
-        # Transfer: the bonus model starts from another run's (a resumed run
-        # restores its own from the checkpoint below).
-        source_frames = load_bonus_model(
-            bonus_transform,
-            cfg.bonus,
-            cfg.intrinsic.init_from,
-            inverse_head=inverse_head(bonus_loss),
-        )
-        print(f"Bonus model from {cfg.intrinsic.init_from} ({source_frames} frames).")
-    if bonus_transform is not None:
-        # the bonus model (and its normalisation statistics) with the learner
-        bonus_transform.to(device)
-        bonus_loss.to(device)
+    bonus_transform, bonus_loss, env_side = build_bonus(cfg, run, env, device)
     eval_seed = cfg.seed + EVAL_SEED_OFFSET
     eval_env = make_env(cfg, cfg.eval.num_envs, seed=eval_seed)
 
@@ -193,6 +178,7 @@ def build(cfg, run: TrainingRun, device) -> Training:
         bonus_loss=bonus_loss,
         env_side=env_side,
         model=model,
+        int_value=int_value,
         policy=policy,
         trunk=shared_trunk(model),
         loss_module=loss_module,
@@ -211,27 +197,54 @@ def build(cfg, run: TrainingRun, device) -> Training:
         ),
         collector=collector,
     )
-    # What a checkpoint holds, saved and loaded from this one mapping (with the
-    # random generators, restored last); restored when resuming.
+    restore(run, training)
+    return training
+
+
+def restore(run: TrainingRun, t: Training) -> None:
+    """What a checkpoint holds, saved and loaded from this one mapping (with the
+    random generators, restored last); restored when resuming."""
     run.restore(
         {
-            "progress": training.progress,
-            "model": model,
-            "int_value": int_value,
-            "optim": optim,
-            "bonus_transform": bonus_transform,
-            "bonus_optim": bonus_optim,
-            "collector": collector,
-            "stats": training.stats,
+            "progress": t.progress,
+            "model": t.model,
+            "int_value": t.int_value,
+            "optim": t.optim,
+            "bonus_transform": t.bonus_transform,
+            "bonus_optim": t.bonus_optim,
+            "collector": t.collector,
+            "stats": t.stats,
             # PPO: the minibatch order of the next update's first epoch, drawn already
-            "minibatch_sampler": None if buffer is None else buffer.sampler,
+            "minibatch_sampler": None if t.buffer is None else t.buffer.sampler,
             # intrinsic.vae.inverse_weight > 0: the inverse head on the VAE's latent
             # (the VAE itself is the bonus transform's)
-            "bonus_inverse_head": inverse_head(bonus_loss),
+            "bonus_inverse_head": inverse_head(t.bonus_loss),
         },
-        on_exit=[collector.shutdown],
+        on_exit=[t.collector.shutdown],
     )
-    return training
+
+
+def build_bonus(cfg, run: TrainingRun, env, device):
+    """The bonus (``make_bonus``), its env-side transform appended to ``env``,
+    its model started from another run's with ``intrinsic.init_from``."""
+    bonus_transform, bonus_loss, env_side = make_bonus(cfg, env.action_spec, cfg.bonus)
+    if env_side is not None:
+        env.append_transform(env_side)
+    if cfg.intrinsic.init_from and not run.resumed_from:
+        # Transfer: the bonus model starts from another run's (a resumed run
+        # restores its own from the checkpoint).
+        source_frames = load_bonus_model(
+            bonus_transform,
+            cfg.bonus,
+            cfg.intrinsic.init_from,
+            inverse_head=inverse_head(bonus_loss),
+        )
+        print(f"Bonus model from {cfg.intrinsic.init_from} ({source_frames} frames).")
+    if bonus_transform is not None:
+        # the bonus model (and its normalisation statistics) with the learner
+        bonus_transform.to(device)
+        bonus_loss.to(device)
+    return bonus_transform, bonus_loss, env_side
 
 
 def train(cfg, run: TrainingRun, t: Training) -> tuple[int, float]:
