@@ -139,3 +139,23 @@ def test_the_package_has_no_import_circle():
     for name in sorted(graph):
         visit(name, [name])
     assert circles == []
+
+
+def test_the_training_code_never_imports_the_results_tools():
+    # The results tools consume the runs: one way only.
+    recipes = PACKAGE.parent / "recipes"
+    offenders = []
+    for folder in ("common", "minigrid", "ddpg_mujoco"):
+        for path in (recipes / folder).rglob("*.py"):
+            for node in ast.walk(ast.parse(path.read_text())):
+                names = []
+                if isinstance(node, ast.Import):
+                    names = [alias.name for alias in node.names]
+                elif isinstance(node, ast.ImportFrom) and not node.level:
+                    names = [node.module or ""]
+                offenders += [
+                    f"{path.relative_to(recipes)}: {name}"
+                    for name in names
+                    if name == "results" or name.startswith("results.")
+                ]
+    assert offenders == []

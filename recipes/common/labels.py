@@ -15,6 +15,7 @@ from typing import Any
 __all__ = [
     "ENVPOOL_SUFFIX",
     "LEVEL_KEY",
+    "split_level",
     "add_label_keys",
     "add_label_keys_argument",
     "read_overrides",
@@ -218,3 +219,24 @@ def add_label_keys_argument(parser, note: str = "") -> None:
         help="dotted config keys whose values join each run's setting label "
         "(',KEY=value'), to tell apart runs of one setting that differ in them" + note,
     )
+
+
+def split_level(setting: str) -> tuple[str, int]:
+    """A setting label's base setting and noise level (0 when it names none).
+
+    The level is the label's ``env.stochasticity=L`` entry wherever it stands (a
+    label made of overrides sorts it among them).
+
+    Examples:
+        >>> split_level("icm,env.stochasticity=2"), split_level("icm")
+        (('icm', 2), ('icm', 0))
+        >>> split_level("bonus=vae,env.stochasticity=3,intrinsic.coef=0.1")
+        ('bonus=vae,intrinsic.coef=0.1', 3)
+    """
+    entries = setting.split(",")
+    prefix = f"{LEVEL_KEY}="
+    levels = [e for e in entries if e.startswith(prefix)]
+    if not levels:
+        return setting, 0
+    base = ",".join(e for e in entries if not e.startswith(prefix))
+    return base, int(levels[0][len(prefix) :])

@@ -23,8 +23,9 @@ from torchrl.modules import ActorValueOperator, ProbabilisticActor, ValueOperato
 from torchrl.objectives.value import GAE
 
 from common.bonuses import BONUSES
+from common.checkpoint import DamagedCheckpoint, find_checkpoint, load_checkpoint
 from common.errors import ConfigError
-from common.labels import ENVPOOL_SUFFIX
+from common.labels import ENVPOOL_SUFFIX, split_level
 from torchrl_surprise import (
     IntrinsicValueLoss,
     TwoStreamAdvantage,
@@ -391,8 +392,6 @@ def load_bonus_model(
     Returns:
         The number of frames the source run had trained for.
     """
-    from .checkpoint import DamagedCheckpoint, find_checkpoint, load_checkpoint
-
     transferable = [name for name, b in BONUSES.items() if b.model_attr]
     if bonus not in transferable:
         raise ValueError(
@@ -501,8 +500,6 @@ def documented_results(
         []
     """
     import csv
-
-    from results.aggregate import split_level
 
     lines, shown = [], set()
     for path in sorted(Path(results_dir).glob("*/summary.csv")):

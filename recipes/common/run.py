@@ -11,7 +11,6 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
-import sys
 import time
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
@@ -30,7 +29,6 @@ from .labels import run_labels
 from .loggers import LoggerState, end_logger_run, get_run_logger
 from .rundir import RunDirInUse, RunLock, prepare_run, write_hydra_record
 from .stopping import (
-    RECIPES_DIR,
     StopSignal,
     exit_process,
     in_sweep,
@@ -91,11 +89,6 @@ class TrainingRun:
     """
 
     def __init__(self, cfg, name: str, run_dir: str | os.PathLike | None = None):
-        if RECIPES_DIR not in sys.path:
-            # A sweep's worker process (submitit, Ray) gets this code by value
-            # but not the recipes' folder on its path, where the results tools
-            # the run reads at its end live.
-            sys.path.insert(0, RECIPES_DIR)
         if run_dir is None:
             from hydra.core.hydra_config import HydraConfig
 

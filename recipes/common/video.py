@@ -44,6 +44,8 @@ import numpy as np
 import torch
 from torchrl.envs import EnvBase, TransformedEnv
 
+from .minigrid import make_env
+
 __all__ = [
     "DEFAULT_FPS",
     "VIDEO_DIR",
@@ -426,8 +428,6 @@ def record_minigrid_video(
         The GIF's path.
     """
     from omegaconf import OmegaConf
-
-    from .minigrid import make_env
 
     # The transforms only: the rendering env is minigrid's whatever the backend.
     env_cfg = OmegaConf.to_container(cfg.env, resolve=True)

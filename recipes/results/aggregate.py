@@ -148,6 +148,7 @@ from common.labels import (  # noqa: F401
     add_label_keys_argument,
     read_overrides,
     setting_label,
+    split_level,
     task_label,
 )
 from common.scalar_logs import read_scalar_csv
@@ -1175,27 +1176,6 @@ def plot_curves(
         "95% stratified-bootstrap CI (rliable); dotted: budget"
     )
     return _save(fig, Path(path), title)
-
-
-def split_level(setting: str) -> tuple[str, int]:
-    """A setting label's base setting and noise level (0 when it names none).
-
-    The level is the label's ``env.stochasticity=L`` entry wherever it stands (a
-    label made of overrides sorts it among them).
-
-    Examples:
-        >>> split_level("icm,env.stochasticity=2"), split_level("icm")
-        (('icm', 2), ('icm', 0))
-        >>> split_level("bonus=vae,env.stochasticity=3,intrinsic.coef=0.1")
-        ('bonus=vae,intrinsic.coef=0.1', 3)
-    """
-    entries = setting.split(",")
-    prefix = f"{LEVEL_KEY}="
-    levels = [e for e in entries if e.startswith(prefix)]
-    if not levels:
-        return setting, 0
-    base = ",".join(e for e in entries if not e.startswith(prefix))
-    return base, int(levels[0][len(prefix) :])
 
 
 def plot_levels(summary: pd.DataFrame, path: str | os.PathLike) -> Path | None:
