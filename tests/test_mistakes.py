@@ -74,6 +74,9 @@ def snapshot(run_dir: Path) -> dict[str, bytes]:
         (MAIN, "bonus=nosuchbonus", ["bonus", "'e3b'", "nosuchbonus"]),
         (MAIN, "env.name=NoSuchEnv-v0", ["env.name=NoSuchEnv-v0", "no MiniGrid task"]),
         (DDPG_MAIN, "optim.actor_lr=-1", ["optim.actor_lr", "-1"]),
+        # a misspelt key added with "+" (Hydra's hint for a key it does not know)
+        (MAIN, "+intrinsic.coeff=0.1", ["intrinsic.coeff", "intrinsic.coef?"]),
+        (DDPG_MAIN, "+eval.video=true", ["eval.video", "interval_frames"]),
     ],
 )
 def test_a_bad_setting_is_one_message_and_leaves_no_file(

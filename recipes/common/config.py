@@ -43,6 +43,7 @@ Examples:
 # its workers (common.stopping.register_sweep_pickling), where string annotations
 # could not be evaluated in a module they cannot import.
 import dataclasses
+import difflib
 import functools
 import math
 import types
@@ -618,7 +619,8 @@ def check_settings(cfg, schema: type, prefix: str = "") -> None:
     """Checks each value of ``cfg`` against its field of ``schema``: floats are
     finite, and each value satisfies its field's :class:`Rule`.
 
-    Types are not checked here: a config composed on its schema has them.
+    Types are not checked here: a config composed on its schema has them. A key
+    the schema does not have (added with ``+``, a misspelt name) is refused.
 
     Args:
         cfg: a config composed on ``schema`` (a ``DictConfig``, or a section).
@@ -630,7 +632,19 @@ def check_settings(cfg, schema: type, prefix: str = "") -> None:
             key, what it expects and the value given.
     """
     hints = typing.get_type_hints(schema)
-    for f in dataclasses.fields(schema):
+    fields = dataclasses.fields(schema)
+    known = [f.name for f in fields]
+    for key in cfg:
+        if key not in known:
+            # added with "+" (Hydra's own hint for a key it does not know)
+            close = difflib.get_close_matches(str(key), known, n=1)
+            hint = f" (did you mean {prefix}{close[0]}?)" if close else ""
+            raise ValueError(
+                f"{prefix}{key} is not a setting of this recipe{hint}. The settings "
+                f"{'of ' + prefix.rstrip('.') if prefix else 'at the top'} are: "
+                f"{', '.join(known)}."
+            )
+    for f in fields:
         key = f"{prefix}{f.name}"
         kind, value = hints[f.name], cfg[f.name]
         if dataclasses.is_dataclass(kind):
