@@ -11,7 +11,11 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 from _recipe_run import shared_run
+
+from common.checkpoint import RunCheckpoint, RunCounters, load_checkpoint
+from common.errors import NonFiniteRun
 
 ROOT = Path(__file__).resolve().parents[1]
 MAIN = ROOT / "recipes" / "minigrid" / "main.py"
@@ -70,6 +74,8 @@ def snapshot(run_dir: Path) -> dict[str, bytes]:
     [
         (MAIN, "intrinsic.coef_end=nan", ["intrinsic.coef_end", "nan"]),
         (MAIN, "optim.lr=inf", ["optim.lr", "inf"]),
+        # RMSprop and Adam divide by sqrt(v) + eps: 0 goes non-finite
+        (MAIN, "optim.eps=0", ["optim.eps", "> 0"]),
         (MAIN, "env.backend=foo", ["env.backend", "'foo'"]),
         (MAIN, "bonus=nosuchbonus", ["bonus", "'e3b'", "nosuchbonus"]),
         (MAIN, "env.name=NoSuchEnv-v0", ["env.name=NoSuchEnv-v0", "no MiniGrid task"]),
@@ -143,3 +149,33 @@ def test_a_run_dir_in_use_is_one_message_and_changes_nothing(tmp_path, finished_
     finally:
         holder.kill()
         holder.wait()
+
+
+def test_a_run_that_diverges_is_one_message_and_keeps_a_finite_checkpoint(tmp_path):
+    # A learning rate that overflows the policy within an update or two.
+    run_dir = tmp_path / "run"
+    overrides = [
+        "optim.lr=1e30",
+        "collector.total_frames=2048",
+        "checkpoint.interval_frames=32",
+    ]
+    proc = launch(MAIN, run_dir, *TINY, *overrides)
+    assert_one_message(proc, "not finite", "last checkpoint")
+    state = load_checkpoint(run_dir / "checkpoint.torchrl")
+    weights = {k: v for k, v in state["model"].items() if v.is_floating_point()}
+    assert weights and all(torch.isfinite(v).all() for v in weights.values())
+
+
+def test_a_non_finite_state_never_replaces_a_finite_checkpoint(tmp_path):
+    net, counters = torch.nn.Linear(2, 1), RunCounters(frames=64)
+    path = tmp_path / "checkpoint.torchrl"
+    checkpoint = RunCheckpoint(path, {"net": net, "progress": counters}, config={})
+    checkpoint.save()
+    saved = path.read_bytes()
+    with torch.no_grad():
+        net.weight[0, 1] = float("nan")
+    counters.frames = 128
+    with pytest.raises(NonFiniteRun, match="net: weight is not finite at 128 frames"):
+        checkpoint.save()
+    assert path.read_bytes() == saved
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["checkpoint.torchrl"]

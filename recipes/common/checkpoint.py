@@ -35,7 +35,7 @@ from torchrl.checkpoint import (
     StateDictCheckpointAdapter,
 )
 
-from .errors import UserMistake
+from .errors import NonFiniteRun, UserMistake
 from .files import (
     free_bytes,
     is_write_error,
@@ -374,6 +374,48 @@ def kept_checkpoints_warning(
     )
 
 
+def first_non_finite(components: Mapping[str, Any]) -> str | None:
+    """``"<component>: <entry>"`` of the first floating-point tensor holding a NaN
+    or an infinity in the state of the modules and optimisers among
+    ``components`` (``None`` when all are finite). Other components (collectors,
+    buffers, counters) hold what the envs gave, not what training computed.
+
+    Examples:
+        >>> net = torch.nn.Linear(2, 1)
+        >>> first_non_finite({"model": net}) is None
+        True
+        >>> with torch.no_grad():
+        ...     net.bias.fill_(float("nan"))
+        Parameter containing:
+        tensor([nan], requires_grad=True)
+        >>> first_non_finite({"model": net})
+        'model: bias'
+    """
+
+    def walk(value, path):
+        if isinstance(value, torch.Tensor):
+            if value.is_floating_point() and not torch.isfinite(value).all():
+                return path
+        elif isinstance(value, Mapping):
+            for key, item in value.items():
+                found = walk(item, f"{path}.{key}" if path else str(key))
+                if found is not None:
+                    return found
+        elif isinstance(value, (list, tuple)):
+            for index, item in enumerate(value):
+                found = walk(item, f"{path}[{index}]")
+                if found is not None:
+                    return found
+        return None
+
+    for name, obj in components.items():
+        if isinstance(obj, (torch.nn.Module, torch.optim.Optimizer)):
+            found = walk(obj.state_dict(), "")
+            if found is not None:
+                return f"{name}: {found}"
+    return None
+
+
 class RunCheckpoint:
     """One mapping of what a run saves, used both to save and to load, written as a
     TorchRL checkpoint (:class:`torchrl.checkpoint.Checkpoint`).
@@ -457,7 +499,19 @@ class RunCheckpoint:
         """Writes the checkpoint atomically: to a temporary file of its own, then
         renamed over the previous one, which a failed write leaves intact, with
         no temporary file; it raises :class:`RunWriteError`, which names the file
-        and the cause (``no space left on device``, ``permission denied``)."""
+        and the cause (``no space left on device``, ``permission denied``).
+
+        A module or optimiser whose state holds a NaN or an infinity is never
+        saved (:func:`first_non_finite`): :class:`NonFiniteRun` names it, and
+        the previous checkpoint stays the run's."""
+        where = first_non_finite(self.components)
+        if where is not None:
+            raise NonFiniteRun(
+                f"{where} is not finite at {self._metadata()['frames']} frames: the "
+                f"run diverged and stops. {self._left_as_it_was()} Resume from it "
+                "with other settings (a smaller learning rate or coefficient) in a "
+                "new run directory, or look for what the last update read."
+            )
         tmp = temporary_path(self.path)
         try:
             self._checkpoint.save(tmp, metadata=self._metadata())

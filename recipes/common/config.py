@@ -285,8 +285,9 @@ class MiniGridOptimConfig:
     """Learning rate; > 0."""
     alpha: float = required(UNIT_INTERVAL)
     """RMSprop's smoothing constant (unused by Adam); in [0, 1]."""
-    eps: float = required(NON_NEGATIVE)
-    """Term added to the denominator of the step; >= 0."""
+    eps: float = required(POSITIVE)
+    """Term added to the denominator of the step; > 0 (0 divides by zero where a
+    parameter's gradients have all been 0, and the run goes non-finite)."""
     max_grad_norm: float = required(POSITIVE)
     """Bound on the norm of the gradients of each step; > 0."""
 

@@ -16,10 +16,13 @@ import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+from tqdm import tqdm
+
 __all__ = [
     "ConfigError",
     "MISTAKE_EXIT_CODE",
     "MissingRunFile",
+    "NonFiniteRun",
     "ResumeRefused",
     "RunAlreadyThere",
     "UserMistake",
@@ -50,6 +53,11 @@ class RunAlreadyThere(UserMistake, FileExistsError):
     """``resume=false`` in a run directory that already holds a run."""
 
 
+class NonFiniteRun(UserMistake, ArithmeticError):
+    """The run went non-finite (a loss, a gradient, a parameter): it stops, and
+    its last finite checkpoint stays as it was."""
+
+
 def _hydra_run_dir() -> Path | None:
     try:
         from hydra.core.hydra_config import HydraConfig
@@ -69,7 +77,9 @@ def _reporting() -> Iterator[None]:
         run_dir = _hydra_run_dir()
         if run_dir is not None and run_dir.is_dir() and not any(run_dir.iterdir()):
             run_dir.rmdir()  # made by Hydra for this launch, which never started
-        print(f"Error: {err}", file=sys.stderr, flush=True)
+        # on a line of its own, a progress bar cleared first
+        with tqdm.external_write_mode(file=sys.stderr):
+            print(f"Error: {err}", file=sys.stderr, flush=True)
         raise SystemExit(MISTAKE_EXIT_CODE) from None
 
 

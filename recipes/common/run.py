@@ -16,14 +16,17 @@ from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import torch
+
 from .checkpoint import (
     CHECKPOINT_NAME,
     KEPT_CHECKPOINTS,
     RunCheckpoint,
     RunCounters,
+    first_non_finite,
     holds_component,
 )
-from .errors import UserMistake
+from .errors import NonFiniteRun, UserMistake
 from .evaluation import plot_run_curves
 from .labels import run_labels
 from .loggers import LoggerState, end_logger_run, get_run_logger
@@ -229,6 +232,34 @@ class TrainingRun:
     def per_second(self, count: float) -> float:
         """``count`` (frames, updates done since :meth:`restore`) per second."""
         return count / (time.perf_counter() - self._start_time)
+
+    def check_finite(self, frames: int, **values: Any) -> None:
+        """Stops the run when a loss (a tensor) or a module's or optimiser's
+        state holds a NaN or an infinity, naming the first such quantity; the
+        last checkpoint, finite, stays the run's (:class:`NonFiniteRun`).
+
+        Examples:
+            >>> import torch
+            >>> run = TrainingRun.__new__(TrainingRun)
+            >>> run.run_dir = "run"
+            >>> run.check_finite(64, loss=torch.tensor(1.0))
+            >>> run.check_finite(64, loss=torch.tensor(float("inf")))
+            Traceback (most recent call last):
+            ...
+            common.errors.NonFiniteRun: loss is not finite at 64 frames: ...
+        """
+        for name, value in values.items():
+            if isinstance(value, torch.Tensor):
+                where = None if torch.isfinite(value).all() else name
+            else:
+                where = first_non_finite({name: value})
+            if where is not None:
+                raise NonFiniteRun(
+                    f"{where} is not finite at {frames} frames: the run diverged "
+                    f"and stops. Its last checkpoint in {self.run_dir} is finite "
+                    "and left as it was: resume from it with other settings (a "
+                    "smaller learning rate or coefficient) in a new run directory."
+                )
 
     def log(self, metrics: Mapping[str, float], step: int) -> None:
         """Logs each scalar of ``metrics`` at ``step`` (nothing without a logger)."""

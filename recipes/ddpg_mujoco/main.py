@@ -231,6 +231,7 @@ def train(cfg, run: TrainingRun, t: Training) -> tuple[int, int, float, float]:
         t.buffer.extend(data.select(*t.stored_keys).reshape(-1))
         if frames >= cfg.collector.init_random_frames:
             updates = update(cfg, t, frames, updates)
+            run.check_finite(frames, loss_module=t.loss_module)
 
         # Logging
         fps = run.per_second(frames - run.start_frames)

@@ -273,7 +273,7 @@ def train(cfg, run: TrainingRun, t: Training) -> tuple[int, float]:
                 t.bonus_loss, t.bonus_optim, data, bonus_steps, t.env_side
             )
         data = bonus_and_advantage(cfg, t, data)  # steps 2 and 3
-        logs = learner_update(cfg, t, data)  # step 4
+        logs = learner_update(cfg, run, t, data, frames)  # step 4
         # Step 5: train the bonus model on the states of this rollout.
         if variant != "info_gain":
             bonus_td = train_bonus_model(
@@ -319,9 +319,10 @@ def bonus_and_advantage(cfg, t: Training, data):
     return data
 
 
-def learner_update(cfg, t: Training, data):
+def learner_update(cfg, run: TrainingRun, t: Training, data, frames: int):
     """Step 4: the learner's update, on the whole batch (A2C) or on epochs of
-    shuffled minibatches (PPO); returns the means of its logged losses."""
+    shuffled minibatches (PPO); returns the means of its logged losses. A loss
+    or a parameter that goes non-finite stops the run, naming it."""
     minibatch_logs = []
     for batch in utils.minibatches(data, t.buffer, cfg.loss.epochs):
         # The shared trunk once, with gradients: the losses' heads read its
@@ -336,6 +337,7 @@ def learner_update(cfg, t: Training, data):
             loss_int = t.int_value_loss(batch)["loss_critic_int"]
             loss = loss + loss_int
             logs["loss_critic_int"] = loss_int.detach()
+        run.check_finite(frames, **{k: v for k, v in logs.items() if "loss" in k})
         t.optim.zero_grad()
         loss.backward()
         logs["grad_norm"] = torch.nn.utils.clip_grad_norm_(
@@ -343,6 +345,7 @@ def learner_update(cfg, t: Training, data):
         )
         t.optim.step()
         minibatch_logs.append(logs)
+    run.check_finite(frames, model=t.model, int_value=t.int_value)
     return torch.stack(minibatch_logs).apply(lambda x: x.mean(), batch_size=[])
 
 

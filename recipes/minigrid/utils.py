@@ -13,6 +13,7 @@ from torchrl.data import LazyTensorStorage, ReplayBuffer, SamplerWithoutReplacem
 from torchrl.envs.transforms import RewardClipping
 from torchrl.objectives import A2CLoss, ClipPPOLoss
 
+from common.errors import NonFiniteRun
 from common.minigrid import make_advantage
 
 __all__ = [
@@ -285,7 +286,17 @@ class SampledCategoricalPolicy(TensorDictModuleBase):
         # What ProbabilisticTensorDictModule does under RANDOM: Categorical(logits)
         # (its argument checks change no value), sample(), log_prob(action).
         dist = Categorical(logits=logits, validate_args=False)
-        action = dist.sample()
+        try:
+            action = dist.sample()
+        except RuntimeError as err:  # torch.multinomial's check of the probabilities
+            if not torch.isfinite(logits).all():
+                raise NonFiniteRun(
+                    "the policy's logits are not finite: the run diverged and "
+                    "stops. Its last checkpoint is finite and left as it was: "
+                    "resume from it with other settings (a smaller learning rate "
+                    "or coefficient) in a new run directory."
+                ) from err
+            raise
         tensordict.set(self._hidden_key, hidden)
         tensordict.set(self._logits_key, logits)
         tensordict.set(self._action_key, action)
