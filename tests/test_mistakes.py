@@ -125,7 +125,11 @@ def test_a_damaged_checkpoint_is_one_message_and_changes_nothing(
     assert snapshot(run_dir) == before
 
 
-def test_a_run_dir_in_use_is_one_message_and_changes_nothing(tmp_path, finished_run):
+@pytest.mark.parametrize("lock_file", ["kept", "deleted"])
+def test_a_run_dir_in_use_is_one_message_and_changes_nothing(
+    tmp_path, finished_run, lock_file
+):
+    # Deleting run.lock (the reflex for a "stale lock") releases nothing.
     run_dir = tmp_path / "run"
     shutil.copytree(finished_run, run_dir)
     holder = subprocess.Popen(
@@ -142,9 +146,12 @@ def test_a_run_dir_in_use_is_one_message_and_changes_nothing(tmp_path, finished_
     )
     try:
         assert holder.stdout.readline().strip() == "held"
+        if lock_file == "deleted":
+            (run_dir / "run.lock").unlink()
         before = snapshot(run_dir)
         proc = launch(MAIN, run_dir, *TINY, "bonus=icm")
-        assert_one_message(proc, str(run_dir), f"process {holder.pid}")
+        named = f"process {holder.pid}" if lock_file == "kept" else "another process"
+        assert_one_message(proc, str(run_dir), "is in use by", named)
         assert snapshot(run_dir) == before  # Hydra's record of the run included
     finally:
         holder.kill()

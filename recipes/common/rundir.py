@@ -24,7 +24,7 @@ from .checkpoint import (
     verify_archive,
 )
 from .errors import MissingRunFile, ResumeRefused, RunAlreadyThere, UserMistake
-from .files import remove_path, write_atomically
+from .files import RunWriteError, remove_path, write_atomically
 from .scalar_logs import scalar_log_files, truncate_scalar_logs
 from .status import STATUS_NAME, read_run_status
 
@@ -290,10 +290,13 @@ class RunDirInUse(UserMistake, RuntimeError):
 class RunLock:
     """Makes one process at a time the owner of a run directory.
 
-    An exclusive ``fcntl.flock`` on ``<run_dir>/run.lock``, which holds the owner's
-    pid and host. The kernel releases the lock when its process ends, however it
-    ends (a SIGKILL, a node's crash), so a dead run never leaves the directory
-    stuck; the pid and host in the file only name the owner in the message.
+    An exclusive ``fcntl.flock`` on the run directory itself; ``<run_dir>/run.lock``
+    holds the owner's pid and host, to name it in the message that refuses
+    another process. The kernel releases the lock when its process ends, however
+    it ends (a SIGKILL, a node's crash), so a dead run never leaves the directory
+    stuck, and deleting ``run.lock`` (the usual reflex for a "stale lock")
+    releases nothing. Written here rather than with ``filelock``, which locks a
+    file: delete that file and a second process takes a lock of its own.
 
     Args:
         run_dir: the run directory (created if absent).
@@ -308,6 +311,11 @@ class RunLock:
         >>> lock = RunLock(run_dir)
         >>> lock.holder() == f"process {os.getpid()} on {socket.gethostname()}"
         True
+        >>> os.remove(os.path.join(run_dir, LOCK_NAME))  # still held
+        >>> RunLock(run_dir)  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        common.rundir.RunDirInUse: ... is in use by another process: ...
         >>> lock.release()
     """
 
@@ -317,7 +325,7 @@ class RunLock:
         self.path = Path(run_dir) / LOCK_NAME
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._fd = None
-        self._fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        self._fd = os.open(self.path.parent, os.O_RDONLY)
         try:
             fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -328,8 +336,11 @@ class RunLock:
                 "runs in a run directory. Wait for that run to end (or stop it), or "
                 "pass another hydra.run.dir."
             ) from None
-        os.ftruncate(self._fd, 0)
-        os.pwrite(self._fd, f"{os.getpid()} {socket.gethostname()}\n".encode(), 0)
+        try:
+            write_atomically(self.path, f"{os.getpid()} {socket.gethostname()}\n")
+        except RunWriteError:
+            self.release()
+            raise
 
     def holder(self) -> str:
         """``"process <pid> on <host>"``, as the lock file says."""
