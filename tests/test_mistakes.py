@@ -186,3 +186,33 @@ def test_a_non_finite_state_never_replaces_a_finite_checkpoint(tmp_path):
         checkpoint.save()
     assert path.read_bytes() == saved
     assert sorted(p.name for p in tmp_path.iterdir()) == ["checkpoint.torchrl"]
+
+
+@pytest.mark.parametrize("name", ["sp ace", "été", "it's"])
+def test_the_printed_commands_can_be_pasted_whatever_the_run_dir(tmp_path, name):
+    import shlex
+
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    from common.checkpoint import DamagedCheckpoint
+    from common.stopping import hydra_path_override
+
+    run_dir = tmp_path / name
+    (word,) = shlex.split(hydra_path_override("hydra.run.dir", run_dir))
+    assert OverridesParser.create().parse_override(word).value() == str(run_dir)
+    # the damaged checkpoint's mv && cp, run by a shell as printed
+    kept = run_dir / "checkpoints"
+    kept.mkdir(parents=True)
+    net, counters = torch.nn.Linear(2, 1), RunCounters(frames=64)
+    RunCheckpoint(
+        kept / "checkpoint-000000000064.torchrl",
+        {"net": net, "progress": counters},
+        config={},
+    ).save()
+    (run_dir / "checkpoint.torchrl").write_bytes(b"garbage")
+    message = str(
+        DamagedCheckpoint(run_dir / "checkpoint.torchrl", ValueError("x"), run_dir)
+    )
+    command = message.split("damaged file: ", 1)[1].split("; then", 1)[0]
+    subprocess.run(["bash", "-c", command], check=True)
+    assert load_checkpoint(run_dir / "checkpoint.torchrl")["frames"] == 64

@@ -20,6 +20,7 @@ fraction of a percent of a run between two checkpoints.
 from __future__ import annotations
 
 import os
+import shlex
 import sys
 import warnings
 import zipfile
@@ -203,20 +204,25 @@ class DamagedCheckpoint(UserMistake, ValueError):
         return DamagedCheckpoint(self.path, self.error, run_dir=run_dir)
 
     def _resume_advice(self) -> list[str]:
-        run_dir = self.run_dir
+        # every path shell-quoted: the commands are pasted as they are
+        run_dir, damaged = self.run_dir, shlex.quote(str(self.path))
         advice = []
         if self.earlier is not None:
+            earlier = shlex.quote(str(self.earlier))
+            target = shlex.quote(str(run_dir / CHECKPOINT_NAME))
+            aside = shlex.quote(f"{self.path}.damaged")
             advice.append(
                 f"To resume from the kept {self.earlier} ({self.earlier_frames} "
-                f"frames), put it in place of the damaged file: mv {self.path} "
-                f"{self.path}.damaged && cp {self.earlier} {run_dir / CHECKPOINT_NAME}"
-                "; then run the same command again."
+                f"frames), put it in place of the damaged file: mv {damaged} "
+                f"{aside} && cp {earlier} {target}; then run the same command again."
             )
         else:
             advice.append(self._use_earlier())
+        moved = shlex.quote(f"{run_dir}.damaged")
         advice.append(
-            f"To start afresh, move the run directory away (mv {run_dir} "
-            f"{run_dir}.damaged) or pass another hydra.run.dir, with resume=false."
+            f"To start afresh, move the run directory away (mv "
+            f"{shlex.quote(str(run_dir))} {moved}) or pass another hydra.run.dir, "
+            "with resume=false."
         )
         return advice
 

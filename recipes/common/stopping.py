@@ -9,6 +9,8 @@ import importlib
 import logging
 import multiprocessing
 import os
+import re
+import shlex
 import signal
 import sys
 import types
@@ -104,8 +106,27 @@ def exit_process(code: int) -> NoReturn:
     os._exit(code)
 
 
+def hydra_path_override(key: str, path: str | os.PathLike) -> str:
+    """``key=path`` as one shell word that Hydra's override parser reads back as
+    ``path``, whatever the path holds (spaces, quotes, non-ASCII letters).
+
+    Examples:
+        >>> hydra_path_override("hydra.run.dir", "runs/a_b-1.2")
+        'hydra.run.dir=runs/a_b-1.2'
+        >>> print(hydra_path_override("hydra.run.dir", "/tmp/sp ace/été"))
+        'hydra.run.dir='"'"'/tmp/sp ace/été'"'"''
+    """
+    path = str(path)
+    if re.fullmatch(r"[A-Za-z0-9_./:+-]+", path):
+        return shlex.quote(f"{key}={path}")
+    # a quoted Hydra value: backslashes and single quotes escaped
+    value = "'" + path.replace("\\", "\\\\").replace("'", "\\'") + "'"
+    return shlex.quote(f"{key}={value}")
+
+
 def resume_command(run_dir: str | os.PathLike) -> str:
-    """The command line that resumes the current Hydra run in ``run_dir``."""
+    """The command line that resumes the current Hydra run in ``run_dir``, each
+    word quoted for the shell (:func:`hydra_path_override` for the directory)."""
     try:
         from hydra.core.hydra_config import HydraConfig
 
@@ -116,8 +137,9 @@ def resume_command(run_dir: str | os.PathLike) -> str:
         ]
     except (ImportError, ValueError):
         overrides = []
-    args = [sys.argv[0], *overrides, f"hydra.run.dir={run_dir}", "resume=true"]
-    return "python " + " ".join(args)
+    words = [shlex.quote(word) for word in (sys.argv[0], *overrides)]
+    words += [hydra_path_override("hydra.run.dir", run_dir), "resume=true"]
+    return "python " + " ".join(words)
 
 
 def _pickle_module_by_name(module: types.ModuleType):
