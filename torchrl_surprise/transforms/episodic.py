@@ -215,6 +215,8 @@ class EllipticalEpisodicMemory(EpisodicMemory):
         """
         moved = done.movedim(time_dim, -1)
         starts = torch.zeros_like(moved)
+        if not moved.shape[-1]:  # no time step
+            return starts.movedim(-1, time_dim)
         starts[..., 0] = self.pending(moved.shape[:-1])
         starts[..., 1:] = moved[..., :-1]
         return starts.movedim(-1, time_dim)
