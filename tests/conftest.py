@@ -50,6 +50,16 @@ def _seed():
     torch.manual_seed(0)
 
 
+@pytest.fixture(autouse=True, scope="session")
+def _paper_minigrid_ids():
+    # Tests gymnasium.make the paper's MultiRoom ids directly; importing the
+    # package registers nothing (tests/test_layout.py), so they are registered
+    # here, as a user's script would (minigrid is a test dependency).
+    from torchrl_surprise.envs import register_minigrid_envs
+
+    register_minigrid_envs()
+
+
 def random_minigrid_image(batch_shape=(), dtype=torch.uint8) -> torch.Tensor:
     """A ``[*batch, 7, 7, 3]`` grid of valid object, colour and state ids."""
     ids = [
