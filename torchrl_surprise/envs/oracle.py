@@ -467,29 +467,26 @@ class _LowerBound:
         return best
 
 
-def _shortest_actions(layout: _Layout, horizon: int) -> tuple[int, ...] | None:
-    """A* search; the actions of a shortest successful sequence, or None.
+class _Moves:
+    """The moves ``MiniGridEnv.step`` (and the pickup tasks' step) makes from a
+    state of one layout, less those no shortest sequence makes (each is proved
+    so in ``solve_minigrid``'s docstring): no-ops, closing a door, picking up
+    again the object just dropped, and a drop after which no other object can
+    be picked up."""
 
-    Transitions are those of ``MiniGridEnv.step`` (and of the pickup tasks' step);
-    pruned are only moves that no shortest sequence makes (each is proved so in
-    ``solve_minigrid``'s docstring): no-ops, closing a door, picking up again the
-    object just dropped, and a drop after which no other object can be picked up.
-    """
-    width = layout.width
-    kinds, door_index = layout.kinds, layout.door_index
-    door_colors, object_kinds = layout.door_colors, layout.object_kinds
-    object_colors, box_contents = layout.object_colors, layout.box_contents
-    target = layout.target
-    fronts = _front_cells(width, len(kinds) // width)
-    lower_bound = _LowerBound(layout, fronts)
+    def __init__(self, layout: _Layout, fronts):
+        self.layout = layout
+        self.fronts = fronts
 
     def another_pickup_possible(
-        pos: int, doors: tuple[int, ...], objects: tuple[int, ...], dropped: int
+        self, pos: int, doors: tuple[int, ...], objects: tuple[int, ...], dropped: int
     ) -> bool:
-        # With empty hands, until the next pickup only unlocked doors and boxes can
-        # change: flood the cells reachable that way (box cells count as passable)
-        # and look for an object other than ``dropped`` (or a box's contents) next
-        # to them.
+        """With empty hands, until the next pickup only unlocked doors and boxes
+        can change: flood the cells reachable that way (box cells count as
+        passable) and look for an object other than ``dropped`` (or a box's
+        contents) next to them."""
+        layout, fronts = self.layout, self.fronts
+        kinds, door_index = layout.kinds, layout.door_index
         seen = {pos}
         stack = [pos]
         while stack:
@@ -500,9 +497,9 @@ def _shortest_actions(layout: _Layout, horizon: int) -> tuple[int, ...] | None:
                 kind = kinds[other]
                 if other in objects:
                     held = objects.index(other)
-                    if held != dropped or box_contents[held] != _NOTHING:
+                    if held != dropped or layout.box_contents[held] != _NOTHING:
                         return True
-                    if object_kinds[held] != _BOX:
+                    if layout.object_kinds[held] != _BOX:
                         continue
                 elif kind == _DOOR:
                     if doors[door_index[other]] == _LOCKED:
@@ -513,30 +510,16 @@ def _shortest_actions(layout: _Layout, horizon: int) -> tuple[int, ...] | None:
                 stack.append(other)
         return False
 
-    start = layout.start
-    if start[2] != _NOTHING and start[2] == target:
-        return (_PICKUP,)  # already holding the object: any pickup action succeeds
-    best_cost = {start: 0}
-    parents: dict[tuple, tuple[tuple, int] | None] = {start: None}
-    done = ("done",)  # the success pseudo-state
-    tie = itertools.count()
-    start_bound = lower_bound(start)
-    if start_bound > horizon or not lower_bound.solvable(start):
-        return None
-    queue = [(start_bound, 0, next(tie), start)]
-    while queue:
-        _, negative_cost, _, state = heapq.heappop(queue)
-        if state is done:
-            return _trace(parents, done)
-        cost = -negative_cost
-        if cost > best_cost[state]:
-            continue  # a stale entry: reached more cheaply since
+    def __call__(self, state: tuple) -> tuple[int | None, list[tuple[int, tuple]]]:
+        """``(the action that succeeds from state or None, [(action, next state)])``."""
+        layout = self.layout
+        kinds, door_index = layout.kinds, layout.door_index
         pos, direction, carrying, doors, objects, forbidden = state
-        front = fronts[pos][direction]
+        front = self.fronts[pos][direction]
         if front < 0:
             # MiniGrid's step() reads the front cell before any action, and
             # asserts on a cell outside the grid: every action fails here.
-            continue
+            return None, []
         successors = [
             (_LEFT, (pos, (direction - 1) % 4, carrying, doors, objects, forbidden)),
             (_RIGHT, (pos, (direction + 1) % 4, carrying, doors, objects, forbidden)),
@@ -556,7 +539,7 @@ def _shortest_actions(layout: _Layout, horizon: int) -> tuple[int, ...] | None:
             )
         # Lava ends the episode with return 0: a dead end, never expanded.
         if occupant != _NOTHING and carrying == _NOTHING and occupant != forbidden:
-            if occupant == target:
+            if occupant == layout.target:
                 success = _PICKUP
             else:
                 moved = objects[:occupant] + (_CARRIED,) + objects[occupant + 1 :]
@@ -565,37 +548,72 @@ def _shortest_actions(layout: _Layout, horizon: int) -> tuple[int, ...] | None:
                 )
         if carrying != _NOTHING and kind == _EMPTY and occupant == _NOTHING:
             moved = objects[:carrying] + (front,) + objects[carrying + 1 :]
-            if another_pickup_possible(pos, doors, moved, carrying):
+            if self.another_pickup_possible(pos, doors, moved, carrying):
                 successors.append(
                     (_DROP, (pos, direction, _NOTHING, doors, moved, carrying))
                 )
+        toggled = self._toggle(state, front, kind, occupant)
+        if toggled is not None:
+            successors.append((_TOGGLE, toggled))
+        return success, successors
+
+    def _toggle(self, state: tuple, front: int, kind: int, occupant: int):
+        """The state after a toggle of the cell in front, or None if it changes
+        nothing (opened doors are never closed)."""
+        layout = self.layout
+        pos, direction, carrying, doors, objects, forbidden = state
         if kind == _DOOR:
-            door = door_index[front]
+            door = layout.door_index[front]
             door_state = doors[door]
-            if door_state == 0:  # closed: open it (opened doors are never closed)
+            if door_state == 0:  # closed: open it
                 door_state = _OPEN
             elif (
                 door_state & _LOCKED
                 and carrying != _NOTHING
-                and object_kinds[carrying] == _KEY
-                and object_colors[carrying] == door_colors[door]
+                and layout.object_kinds[carrying] == _KEY
+                and layout.object_colors[carrying] == layout.door_colors[door]
             ):
                 door_state = _OPEN
-            if door_state != doors[door]:
-                toggled = doors[:door] + (door_state,) + doors[door + 1 :]
-                successors.append(
-                    (_TOGGLE, (pos, direction, carrying, toggled, objects, forbidden))
-                )
-        elif occupant != _NOTHING and object_kinds[occupant] == _BOX:
+            if door_state == doors[door]:
+                return None
+            toggled = doors[:door] + (door_state,) + doors[door + 1 :]
+            return (pos, direction, carrying, toggled, objects, forbidden)
+        if occupant != _NOTHING and layout.object_kinds[occupant] == _BOX:
             # Toggling a box replaces it by its contents (possibly nothing).
-            inside = box_contents[occupant]
+            inside = layout.box_contents[occupant]
             moved = list(objects)
             moved[occupant] = _GONE
             if inside != _NOTHING:
                 moved[inside] = front
-            successors.append(
-                (_TOGGLE, (pos, direction, carrying, doors, tuple(moved), forbidden))
-            )
+            return (pos, direction, carrying, doors, tuple(moved), forbidden)
+        return None
+
+
+def _shortest_actions(layout: _Layout, horizon: int) -> tuple[int, ...] | None:
+    """A* search over :class:`_Moves`; the actions of a shortest successful
+    sequence, or None."""
+    fronts = _front_cells(layout.width, len(layout.kinds) // layout.width)
+    lower_bound = _LowerBound(layout, fronts)
+    moves = _Moves(layout, fronts)
+    start = layout.start
+    if start[2] != _NOTHING and start[2] == layout.target:
+        return (_PICKUP,)  # already holding the object: any pickup action succeeds
+    best_cost = {start: 0}
+    parents: dict[tuple, tuple[tuple, int] | None] = {start: None}
+    done = ("done",)  # the success pseudo-state
+    tie = itertools.count()
+    start_bound = lower_bound(start)
+    if start_bound > horizon or not lower_bound.solvable(start):
+        return None
+    queue = [(start_bound, 0, next(tie), start)]
+    while queue:
+        _, negative_cost, _, state = heapq.heappop(queue)
+        if state is done:
+            return _trace(parents, done)
+        cost = -negative_cost
+        if cost > best_cost[state]:
+            continue  # a stale entry: reached more cheaply since
+        success, successors = moves(state)
         if success is not None:
             if cost + 1 <= horizon and cost + 1 < best_cost.get(done, _UNREACHABLE):
                 best_cost[done] = cost + 1
