@@ -295,7 +295,7 @@ def test_a_bad_value_is_refused_naming_its_setting(run, override):
                 (
                     "intrinsic.normalization=median",
                     "intrinsic.normalization must be one of 'none', 'reward_std', "
-                    "'return_std', 'zscore', got 'median'.",
+                    "'return_std', 'zscore', 'e3b_std', got 'median'.",
                 ),
                 (
                     "intrinsic.vae.variant=novelty",
@@ -413,7 +413,7 @@ def test_a_bad_value_is_refused_naming_its_setting(run, override):
                 (
                     "intrinsic.normalization=median",
                     "intrinsic.normalization must be one of 'none', 'reward_std', "
-                    "'return_std', 'zscore', got 'median'.",
+                    "'return_std', 'zscore', 'e3b_std', got 'median'.",
                 ),
                 (
                     "exploration.noise=pink",

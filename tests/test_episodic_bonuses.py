@@ -475,3 +475,45 @@ def test_the_elliptical_walk_equals_one_step_at_a_time(time_dim, chunk):
     # And they go on equally.
     more = torch.randn(*envs, dim)
     torch.testing.assert_close(walked.step(more), stepped.step(more))
+
+
+def official_running_std(batches, batch_size):
+    """models.py l.413-434 of facebookresearch/e3b as written, on learner batches
+    ``[T, batch_size]`` (a NetHackPolicyNet's buffers: count starts at 1e-8)."""
+    reward_sum = torch.zeros((), dtype=torch.float64)
+    reward_m2 = torch.zeros((), dtype=torch.float64)
+    reward_count = torch.zeros((), dtype=torch.float64).fill_(1e-8)
+    for batch in batches:
+        for reward_batch in batch.double().split(batch_size, dim=1):
+            new_count = len(reward_batch)
+            new_sum = torch.sum(reward_batch)
+            new_mean = new_sum / new_count
+            curr_mean = reward_sum / reward_count
+            new_m2 = torch.sum((reward_batch - new_mean) ** 2) + (
+                (reward_count * new_count)
+                / (reward_count + new_count)
+                * (new_mean - curr_mean) ** 2
+            )
+            reward_count += new_count
+            reward_sum += new_sum
+            reward_m2 += new_m2
+    return torch.sqrt(reward_m2 / reward_count)
+
+
+def test_e3b_std_divides_by_the_statistic_of_e3b_code():
+    # A bonus of mean ~1: E3B's statistic is several times the bonus's std.
+    model = E3BModel.for_vector(3, 2, embedding_dim=8, hidden_dim=8)
+    transform = E3BTransform(model, normalization="e3b_std", reward_key=None)
+    batches = []
+    for _ in range(3):
+        td = revisiting_batch()
+        td["next", "observation"] = torch.randn(2, 6, 3)
+        out = transform(td)
+        raw = out["next", "intrinsic_reward"][..., 0]
+        batches.append(raw.T)  # [T, envs], time first as E3B's learner batch
+        expected = official_running_std(batches, 8)
+        torch.testing.assert_close(
+            out["next", "intrinsic_reward_normalized"][..., 0].double(),
+            raw.double() / expected,
+        )
+    assert expected > 1.5 * torch.cat([b.reshape(-1) for b in batches]).double().std()

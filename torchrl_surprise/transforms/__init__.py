@@ -2,6 +2,7 @@
 
 from torchrl_surprise.transforms.base import (
     NORMALIZATIONS,
+    E3BRewardMoments,
     IntrinsicRewardTransform,
     LinearSchedule,
     WorkerCopyWarning,
@@ -29,6 +30,7 @@ from torchrl_surprise.transforms.vae_surprise import (
 )
 
 __all__ = [
+    "E3BRewardMoments",
     "E3BTransform",
     "EllipticalEpisodicMemory",
     "EpisodicMemory",

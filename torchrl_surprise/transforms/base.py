@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import torch
 from tensordict import TensorDictBase
 from tensordict.utils import NestedKey, unravel_key
+from torch import nn
 from torchrl.data.tensor_specs import Composite, Unbounded
 from torchrl.envs.transforms import Compose, Transform
 from torchrl.envs.transforms.rnd import RunningMeanStd
@@ -27,6 +28,7 @@ from torchrl_surprise.transforms.episodic import EpisodicMemory
 
 __all__ = [
     "CONTRIBUTIONS_KEY",
+    "E3BRewardMoments",
     "IntrinsicRewardTransform",
     "LinearSchedule",
     "NORMALIZATIONS",
@@ -35,7 +37,7 @@ __all__ = [
 ]
 
 #: Accepted values of ``normalization``.
-NORMALIZATIONS = ("none", "reward_std", "return_std", "zscore")
+NORMALIZATIONS = ("none", "reward_std", "return_std", "zscore", "e3b_std")
 
 #: The ``"next"`` entry under which each bonus keeps what it added to the reward,
 #: ``coef * normalised bonus``, as ``(CONTRIBUTIONS_KEY, <transform class>,
@@ -104,6 +106,53 @@ def make_coef_schedule(
         frames=int(anneal_frames),
         delay=int(warmup_frames),
     )
+
+
+class E3BRewardMoments(nn.Module):
+    """The running statistic E3B's code divides its bonus by (``normalization="e3b_std"``).
+
+    Transcribed from facebookresearch/e3b, ``minihack/torchbeast/src/models.py``
+    l.413-434 (``update_running_moments``, ``get_running_std``), as
+    ``algos/e3b.py`` l.82-86 calls it on each learner batch of ``batch_size``
+    trajectories of T steps (``--batch_size 8``, ``arguments.py`` l.46). That code
+    counts T bonuses per batch where there are T x ``batch_size``, and centres
+    them on the batch's sum over T: ``sqrt(m2 / count)`` is about
+    ``sqrt(B (sigma^2 + (B - 1)^2 mu^2))`` for bonuses of mean ``mu`` and std
+    ``sigma``, many times their std. It is kept as written, so that E3B's
+    bonus has the scale its authors' runs gave it. A batch of N envs is taken
+    ``batch_size`` envs at a time.
+
+    Examples:
+        >>> moments = E3BRewardMoments(batch_size=2)
+        >>> moments.update(torch.tensor([[1.0, 1.0], [1.0, 1.0]]))  # T=2, 2 envs
+        >>> moments.std()  # sum 4 over a count of 2: mean 2, not 1
+        tensor(1.4142, dtype=torch.float64)
+    """
+
+    def __init__(self, batch_size: int = 8):
+        super().__init__()
+        self.batch_size = int(batch_size)
+        self.register_buffer("reward_sum", torch.zeros((), dtype=torch.float64))
+        self.register_buffer("reward_m2", torch.zeros((), dtype=torch.float64))
+        self.register_buffer("reward_count", torch.full((), 1e-8, dtype=torch.float64))
+
+    def update(self, bonus: torch.Tensor) -> None:
+        """Adds ``bonus``, ``[T, N]`` (time first), ``batch_size`` envs at a time."""
+        for group in bonus.to(torch.float64).split(self.batch_size, dim=1):
+            new_count = group.shape[0]
+            new_sum = group.sum()
+            new_mean = new_sum / new_count
+            curr_mean = self.reward_sum / self.reward_count
+            new_m2 = ((group - new_mean) ** 2).sum() + (
+                self.reward_count * new_count / (self.reward_count + new_count)
+            ) * (new_mean - curr_mean) ** 2
+            self.reward_count += new_count
+            self.reward_sum += new_sum
+            self.reward_m2 += new_m2
+
+    def std(self) -> torch.Tensor:
+        """``sqrt(m2 / count)``."""
+        return (self.reward_m2 / self.reward_count).sqrt()
 
 
 class WorkerCopyWarning(UserWarning):
@@ -175,6 +224,8 @@ class IntrinsicRewardTransform(Transform):
     * ``"zscore"``: centred by the running mean and divided by the running std.
       Centring removes the constant part of a bonus that is positive everywhere,
       which in an episodic task otherwise acts as a living bonus.
+    * ``"e3b_std"``: divided by the running statistic of E3B's code
+      (:class:`E3BRewardMoments`), as its authors' runs divided it.
     * ``"return_std"``: divided by the running std of the discounted intrinsic
       return (non-episodic), as in RND. Needs a time dimension: one ``_step`` call
       in an env is one time step; a batch must have a dimension named ``"time"``
@@ -317,6 +368,8 @@ class IntrinsicRewardTransform(Transform):
         self.count_frames = count_frames
         self._frozen = False
         self.reward_rms = RunningMeanStd(shape=())
+        if normalization == "e3b_std":
+            self.e3b_moments = E3BRewardMoments()
         self.register_buffer("frames", torch.zeros((), dtype=torch.long))
         self.register_buffer("_return_acc", torch.zeros(0))
 
@@ -621,6 +674,8 @@ class IntrinsicRewardTransform(Transform):
     def _normalize(self, bonus: torch.Tensor, time_dim: int | None) -> torch.Tensor:
         if self.normalization == "none":
             return bonus
+        if self.normalization == "e3b_std":
+            return self._normalize_e3b(bonus, time_dim)
         if self.normalization == "return_std":
             stats_input = self._discounted_returns(bonus, time_dim)
         else:
@@ -632,6 +687,17 @@ class IntrinsicRewardTransform(Transform):
             out = (bonus - self.reward_rms.mean) / std
         else:
             out = bonus / std
+        if self.clip is not None:
+            out = out.clamp(-self.clip, self.clip)
+        return out
+
+    def _normalize_e3b(self, bonus: torch.Tensor, time_dim: int | None):
+        # One env step (time_dim None) is T = 1; a batch is [T, N] time first.
+        moved = bonus.unsqueeze(0) if time_dim is None else bonus.movedim(time_dim, 0)
+        if self._updating and moved.numel():
+            self.e3b_moments.update(moved.reshape(moved.shape[0], -1))
+        std = self.e3b_moments.std()
+        out = bonus / std.to(bonus.dtype) if std > 0 else bonus
         if self.clip is not None:
             out = out.clamp(-self.clip, self.clip)
         return out
