@@ -413,3 +413,11 @@ def test_per_transition_entries_of_another_shape_are_refused(
     assert set(td.keys(True, True)) == set(original.keys(True, True))
     memory = getattr(transform, "memory", getattr(transform, "visits", None))
     assert memory is None or memory.env_shape is None
+
+
+@pytest.mark.parametrize("name", ["elliptical", "e3b", "noveld"])
+def test_a_batch_of_no_envs_gives_empty_bonuses(name, make_vector_batch):
+    # No env, some time steps (a numpy reshape of 0 rows failed in NovelD's visits).
+    transform = _all_transforms(normalization="none")[name]
+    out = transform(_timed_batch(make_vector_batch, (0, 5)))
+    assert out["next", "intrinsic_reward"].shape == (0, 5, 1)

@@ -509,6 +509,8 @@ class EpisodicVisits(EpisodicMemory):
                 "call reset_episodes() to start afresh."
             )
         n = self._env_shape.numel()
+        if not n:  # a batch of no envs
+            return []
         parts = [
             np.ascontiguousarray(obs.detach().cpu().numpy())
             .reshape(n, -1)
