@@ -216,3 +216,21 @@ def test_the_printed_commands_can_be_pasted_whatever_the_run_dir(tmp_path, name)
     command = message.split("damaged file: ", 1)[1].split("; then", 1)[0]
     subprocess.run(["bash", "-c", command], check=True)
     assert load_checkpoint(run_dir / "checkpoint.torchrl")["frames"] == 64
+
+
+def test_a_resume_whose_logs_do_not_reach_its_checkpoint_is_refused(
+    tmp_path, finished_run
+):
+    # An emptied scalar log: resumed, the curve would start at the checkpoint.
+    run_dir = tmp_path / "emptied"
+    shutil.copytree(finished_run, run_dir)
+    log = next(run_dir.glob("logs/*/scalars/train/episode_return.csv"))
+    log.write_text("")
+    proc = launch(MAIN, run_dir, *TINY, "collector.total_frames=256")
+    assert_one_message(proc, "episode_return.csv (emptied)", "resume_without_logs")
+    # A run that logged nowhere, resumed with the CSV logger.
+    run_dir = tmp_path / "unlogged"
+    proc = launch(MAIN, run_dir, *TINY, "logger.backend=")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    proc = launch(MAIN, run_dir, *TINY, "collector.total_frames=256")
+    assert_one_message(proc, "logger.backend=''", "resume_without_logs")

@@ -61,19 +61,29 @@ def _remove_leftover_temporaries(run_dir: Path) -> None:
         remove_path(path)
 
 
-def _missing_scalar_logs(run_dir: Path, info: Mapping[str, Any]) -> list[str]:
-    # The CSV logs a run resumed at info["frames"] should find: those its
-    # status.json lists, or for a run without one, any.
-    logger = info["config"].get("logger") or {}
-    if info["frames"] <= 0 or logger.get("backend") != "csv":
+def _missing_scalar_logs(
+    run_dir: Path, info: Mapping[str, Any], backend: str
+) -> list[str]:
+    # The CSV logs a run resumed at info["frames"] with the CSV logger should
+    # find, each with rows: those its status.json lists, or for a run without
+    # one, any; none at all when it logged elsewhere until its checkpoint.
+    if info["frames"] <= 0 or backend != "csv":
         return []
+    saved = (info["config"].get("logger") or {}).get("backend")
+    if saved != "csv":
+        return [f"every CSV log (the run logged with logger.backend={saved!r})"]
     present = set(scalar_log_files(run_dir))
     try:
         status = read_run_status(run_dir)
     except ValueError:
         status = None
     if status is not None and isinstance(status.get("logs"), list):
-        return sorted(set(status["logs"]) - present)
+        listed = sorted(status["logs"])
+        return [
+            name if name not in present else f"{name} (emptied)"
+            for name in listed
+            if name not in present or not (run_dir / name).read_bytes().strip()
+        ]
     return [] if present else ["logs/*/scalars/*.csv (none left)"]
 
 
@@ -251,7 +261,8 @@ def prepare_run(cfg, run_dir: str | os.PathLike) -> tuple[Path, dict[str, Any] |
                 + ", ".join(RESUMABLE_CHANGES)
                 + ". Start a new run directory for a new experiment."
             )
-        missing = _missing_scalar_logs(run_dir, info)
+        backend = (cfg.get("logger") or {}).get("backend")
+        missing = _missing_scalar_logs(run_dir, info, backend)
         if missing and not cfg.get("resume_without_logs", False):
             raise MissingRunFile(
                 f"Cannot resume {run_dir}: its checkpoint is at {info['frames']} "
