@@ -69,19 +69,40 @@ def snapshot(run_dir: Path) -> dict[str, bytes]:
     }
 
 
+# Refused by the config's checks: in one process (each message as a user reads it)
+CONFIG_MISTAKES = [
+    ("intrinsic.coef_end=nan", ["intrinsic.coef_end", "nan"]),
+    ("optim.lr=inf", ["optim.lr", "inf"]),
+    # RMSprop and Adam divide by sqrt(v) + eps: 0 goes non-finite
+    ("optim.eps=0", ["optim.eps", "> 0"]),
+    ("env.backend=foo", ["env.backend", "'foo'"]),
+    ("bonus=nosuchbonus", ["bonus", "'e3b'", "nosuchbonus"]),
+    # a misspelt key added with "+" (Hydra's hint for a key it does not know)
+    ("+intrinsic.coeff=0.1", ["intrinsic.coeff", "intrinsic.coef?"]),
+]
+
+
+@pytest.mark.parametrize("override, words", CONFIG_MISTAKES)
+def test_a_bad_setting_is_a_config_error_naming_it(override, words):
+    from hydra import compose, initialize_config_dir
+
+    from common.config import validate_minigrid
+    from common.errors import ConfigError
+
+    with initialize_config_dir(str(MAIN.parent), version_base=None):
+        cfg = compose("config", overrides=[override])
+    with pytest.raises(ConfigError) as refused:
+        validate_minigrid(cfg)
+    missing = [word for word in words if word not in str(refused.value)]
+    assert not missing, f"{refused.value} does not name {missing}"
+
+
+# ... and end to end, as a user launches them: the recipes' scripts
 @pytest.mark.parametrize(
     "main, override, words",
     [
         (MAIN, "intrinsic.coef_end=nan", ["intrinsic.coef_end", "nan"]),
-        (MAIN, "optim.lr=inf", ["optim.lr", "inf"]),
-        # RMSprop and Adam divide by sqrt(v) + eps: 0 goes non-finite
-        (MAIN, "optim.eps=0", ["optim.eps", "> 0"]),
-        (MAIN, "env.backend=foo", ["env.backend", "'foo'"]),
-        (MAIN, "bonus=nosuchbonus", ["bonus", "'e3b'", "nosuchbonus"]),
         (MAIN, "env.name=NoSuchEnv-v0", ["env.name=NoSuchEnv-v0", "no MiniGrid task"]),
-        (DDPG_MAIN, "optim.actor_lr=-1", ["optim.actor_lr", "-1"]),
-        # a misspelt key added with "+" (Hydra's hint for a key it does not know)
-        (MAIN, "+intrinsic.coeff=0.1", ["intrinsic.coeff", "intrinsic.coef?"]),
         (DDPG_MAIN, "+eval.video=true", ["eval.video", "interval_frames"]),
     ],
 )
