@@ -169,6 +169,9 @@ def test_a_checkpoint_that_fills_the_disk_is_named_and_leaves_no_temporary(
     message = str(failed.value)
     assert f"could not write {tmp_path / CHECKPOINT_NAME}" in message
     assert "no space left on device" in message
+    # the space a save needs: a new file beside the previous one
+    size = (tmp_path / CHECKPOINT_NAME).stat().st_size
+    assert f"the write needs about {size / 2**20:.1f} MiB more" in message
     assert failed.value.errno == errno.ENOSPC
     assert f"The previous checkpoint, {tmp_path / CHECKPOINT_NAME}" in message
     assert _listing(tmp_path) == before

@@ -95,7 +95,11 @@ def write_failure(
         reason = _WRITE_ERRORS.get(code) or os.strerror(code).lower()
     message = f"could not write {path}: {reason}"
     if code in (errno.ENOSPC, errno.EDQUOT) and free is not None:
-        message += f" ({free / 2**20:.1f} MiB free there)"
+        message += f" ({free / 2**20:.1f} MiB free there"
+        if needed:
+            # a new file is written beside the one it replaces
+            message += f"; the write needs about {needed / 2**20:.1f} MiB more"
+        message += ")"
     message += ". No partial file is left behind."
     if kept:
         message += " " + kept
