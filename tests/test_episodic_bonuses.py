@@ -464,11 +464,20 @@ def test_the_elliptical_walk_equals_one_step_at_a_time(time_dim, chunk):
     start = torch.randn(*envs, dim)
     walked.step(start)
     stepped.step(start)
+    # each step's first state, taken in where an episode begins (chunk edges too)
+    firsts = torch.randn(*envs, steps, dim)
     loop = torch.stack(
-        [stepped.step(phi[..., t, :], done[..., t]) for t in range(steps)], -1
+        [
+            stepped.step(phi[..., t, :], done[..., t], firsts[..., t, :])
+            for t in range(steps)
+        ],
+        -1,
     )
     bonus = walked.walk(
-        phi.movedim(2, time_dim), done.movedim(2, time_dim), time_dim
+        phi.movedim(2, time_dim),
+        done.movedim(2, time_dim),
+        time_dim,
+        firsts.movedim(2, time_dim),
     ).movedim(time_dim, 2)
     torch.testing.assert_close(bonus, loop, rtol=1e-9, atol=1e-12)
     torch.testing.assert_close(walked.inv_cov, stepped.inv_cov, rtol=1e-9, atol=1e-12)

@@ -188,7 +188,7 @@ def test_a_run_that_diverges_is_one_message_and_keeps_a_finite_checkpoint(tmp_pa
         "checkpoint.interval_frames=32",
     ]
     proc = launch(MAIN, run_dir, *TINY, *overrides)
-    assert_one_message(proc, "not finite", "last checkpoint")
+    assert_one_message(proc, "not finite", "Start a new run")
     state = load_checkpoint(run_dir / "checkpoint.torchrl")
     weights = {k: v for k, v in state["model"].items() if v.is_floating_point()}
     assert weights and all(torch.isfinite(v).all() for v in weights.values())
@@ -209,7 +209,7 @@ def test_a_non_finite_state_never_replaces_a_finite_checkpoint(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["checkpoint.torchrl"]
 
 
-@pytest.mark.parametrize("name", ["sp ace", "été", "it's"])
+@pytest.mark.parametrize("name", ["sp ace", "été", "it's", "a\\b", "c\\'d\\"])
 def test_the_printed_commands_can_be_pasted_whatever_the_run_dir(tmp_path, name):
     import shlex
 

@@ -161,3 +161,18 @@ def test_a_failed_write_keeps_the_previous_checkpoint_and_leaves_no_temporary(
         ckpt.save()
     assert load_checkpoint(tmp_path / CHECKPOINT_NAME)["frames"] == 128
     assert sorted(p.name for p in tmp_path.iterdir()) == [CHECKPOINT_NAME]
+
+
+def test_a_setting_added_with_a_new_behaviour_is_compared_with_the_old_one():
+    # E3B's episode start: a checkpoint written before the setting existed ran
+    # with start_in_memory=False, which is what a resume must keep.
+    from common.rundir import config_differences
+
+    saved = {"bonus": "e3b", "intrinsic": {"e3b": {"ridge": 0.1}}}
+    now = {"bonus": "e3b", "intrinsic": {"e3b": {"ridge": 0.1}}}
+    now["intrinsic"]["e3b"]["start_in_memory"] = True
+    assert config_differences(saved, now) == [
+        "intrinsic.e3b.start_in_memory: False -> True"
+    ]
+    now["intrinsic"]["e3b"]["start_in_memory"] = False
+    assert config_differences(saved, now) == []

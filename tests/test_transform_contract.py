@@ -1024,3 +1024,14 @@ def test_no_gradients_flow_from_outputs(kind, make_vector_batch):
     for key in ("intrinsic_reward", "intrinsic_reward_normalized", "reward"):
         assert not out["next", key].requires_grad
     assert all(p.grad is None for p in bonus_model(transform).parameters())
+
+
+def test_a_frozen_copy_keeps_its_own_e3b_statistic(make_vector_batch):
+    transform = make_transform("vae", normalization="e3b_std")
+    transform(make_vector_batch((64,)))
+    frozen = transform.frozen_copy()
+    assert frozen.e3b_moments is not transform.e3b_moments
+    count = frozen.e3b_moments.reward_count.clone()
+    transform(make_vector_batch((64,)))
+    assert frozen.e3b_moments.reward_count == count
+    assert transform.e3b_moments.reward_count > count

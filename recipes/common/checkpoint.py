@@ -380,6 +380,13 @@ def kept_checkpoints_warning(
     )
 
 
+DIVERGED_ADVICE = (
+    "Start a new run with other settings (a smaller learning rate or "
+    "intrinsic.coef), or look for what the last update read."
+)
+"""What a run that went non-finite is told to do."""
+
+
 def first_non_finite(components: Mapping[str, Any]) -> str | None:
     """``"<component>: <entry>"`` of the first floating-point tensor holding a NaN
     or an infinity in the state of the modules and optimisers among
@@ -514,9 +521,8 @@ class RunCheckpoint:
         if where is not None:
             raise NonFiniteRun(
                 f"{where} is not finite at {self._metadata()['frames']} frames: the "
-                f"run diverged and stops. {self._left_as_it_was()} Resume from it "
-                "with other settings (a smaller learning rate or coefficient) in a "
-                "new run directory, or look for what the last update read."
+                f"run diverged and stops, saving nothing. {self.left_as_it_was()} "
+                f"{DIVERGED_ADVICE}"
             )
         tmp = temporary_path(self.path)
         try:
@@ -527,7 +533,7 @@ class RunCheckpoint:
                 raise
             size = self.path.stat().st_size if self.path.exists() else 0
             raise write_failure(
-                err, self.path, needed=size, kept=self._left_as_it_was()
+                err, self.path, needed=size, kept=self.left_as_it_was()
             ) from err
         finally:
             remove_path(tmp)
@@ -542,7 +548,8 @@ class RunCheckpoint:
                 labels=self._labels,
             )
 
-    def _left_as_it_was(self) -> str:
+    def left_as_it_was(self) -> str:
+        """What a failed save leaves: the previous checkpoint, or none."""
         for previous in (self.path, self.path.with_name(LEGACY_CHECKPOINT_NAME)):
             if previous.exists():
                 return f"The previous checkpoint, {previous}, is left as it was."

@@ -762,6 +762,12 @@ def validate_ddpg(cfg) -> None:
     """
     check_settings(cfg, DDPGConfig)
     intrinsic, collector = cfg.intrinsic, cfg.collector
+    if intrinsic.normalization == "e3b_std":
+        raise ValueError(
+            "intrinsic.normalization=e3b_std is E3B's statistic over batches of 8 "
+            "trajectories of an on-policy learner: DDPG's replay samples have none. "
+            "Pick reward_std, zscore, return_std or none."
+        )
     if intrinsic.normalization == "return_std" and intrinsic.bonus_at == "sample":
         raise ValueError(
             "intrinsic.normalization=return_std needs whole trajectories (a time "

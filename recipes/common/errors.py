@@ -18,6 +18,8 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from .stopping import in_sweep
+
 __all__ = [
     "ConfigError",
     "MISTAKE_EXIT_CODE",
@@ -76,18 +78,24 @@ def _reporting() -> Iterator[None]:
             raise
         run_dir = _hydra_run_dir()
         if run_dir is not None and run_dir.is_dir() and not any(run_dir.iterdir()):
-            run_dir.rmdir()  # made by Hydra for this launch, which never started
+            try:
+                run_dir.rmdir()  # made by Hydra for this launch, which never started
+            except OSError:
+                pass  # another launch wrote there since
         # on a line of its own, a progress bar cleared first
         with tqdm.external_write_mode(file=sys.stderr):
             print(f"Error: {err}", file=sys.stderr, flush=True)
+        if in_sweep():
+            raise  # Hydra marks this job failed; the sweep's other jobs go on
         raise SystemExit(MISTAKE_EXIT_CODE) from None
 
 
 def report_mistakes(main: Callable) -> Callable:
     """Decorates a recipe's ``main``: a :class:`UserMistake` is printed as one
     ``Error: ...`` line on stderr and the process exits with
-    :data:`MISTAKE_EXIT_CODE`; the empty run directory Hydra made for a launch
-    refused before it started is removed.
+    :data:`MISTAKE_EXIT_CODE` (in a sweep, the error goes on to Hydra, which marks
+    the job failed and runs the others); the empty run directory Hydra made for
+    a launch refused before it started is removed.
 
     Examples:
         >>> @report_mistakes

@@ -34,7 +34,7 @@ from torchrl_surprise.collectors import (
     ResumableCollector,
     ResumableMultiSyncCollector,
 )
-from torchrl_surprise.envs import make_minigrid_env
+from torchrl_surprise.envs import UnknownMiniGridTask, make_minigrid_env
 from torchrl_surprise.transforms import (
     make_coef_schedule,
 )
@@ -73,7 +73,7 @@ def make_env(cfg, num_envs: int, seed: int, bonus: str = "none", rnd=None):
             backend=cfg.env.backend,
             num_threads=cfg.env.num_threads,
         )
-    except ValueError as err:
+    except UnknownMiniGridTask as err:
         raise ConfigError(f"env.name={cfg.env.name}: {err}") from None
     transforms = []
     if cfg.env.stochasticity:

@@ -20,6 +20,7 @@ import torch
 
 from .checkpoint import (
     CHECKPOINT_NAME,
+    DIVERGED_ADVICE,
     KEPT_CHECKPOINTS,
     RunCheckpoint,
     RunCounters,
@@ -30,7 +31,13 @@ from .errors import NonFiniteRun, UserMistake
 from .evaluation import plot_run_curves
 from .labels import run_labels
 from .loggers import LoggerState, end_logger_run, get_run_logger
-from .rundir import RunDirInUse, RunLock, prepare_run, write_hydra_record
+from .rundir import (
+    LOCK_NAME,
+    RunDirInUse,
+    RunLock,
+    prepare_run,
+    write_hydra_record,
+)
 from .stopping import (
     StopSignal,
     exit_process,
@@ -101,8 +108,6 @@ class TrainingRun:
         self.run_dir = Path(run_dir)
         self.resumed_from = None
         self._skipped = ""
-        # made for this launch (Hydra makes it empty): abandon() removes it
-        self._fresh = not self.run_dir.is_dir() or not any(self.run_dir.iterdir())
         try:
             # this process owns the run directory until it ends
             self._lock = RunLock(self.run_dir)
@@ -112,6 +117,9 @@ class TrainingRun:
             # a rerun sweep leaves the job another sweep is running to it
             self._skipped = f"Skipped: {err}"
             return
+        # made for this launch (Hydra makes it empty; the lock file is ours):
+        # abandon() removes it
+        self._fresh = {p.name for p in self.run_dir.iterdir()} <= {LOCK_NAME}
         # the checkpoint to resume from (None: a new run) and what it says
         try:
             source, self.resumed_from = prepare_run(cfg, self.run_dir)
@@ -131,9 +139,10 @@ class TrainingRun:
         for a launch refused on a mistake: the lock is released and a directory
         this launch made (absent or empty before it) is removed with what was
         written in it, so a refused launch leaves nothing behind."""
-        self._lock.release()
         if self._fresh and self.run_dir.is_dir():
+            # removed while the lock is held: no other launch has the directory
             shutil.rmtree(self.run_dir, ignore_errors=True)
+        self._lock.release()
 
     @contextlib.contextmanager
     def starting(self) -> Iterator[None]:
@@ -180,8 +189,6 @@ class TrainingRun:
                 (parallel bars garble each other; the logs hold the progress).
         """
         cfg = self.cfg
-        # the run starts: Hydra's record of it is this launch's
-        write_hydra_record(self.run_dir, cfg)
         self.counters = components["progress"]
         if "logger" in components:
             raise KeyError("'logger' is the run's own: the logger's state.")
@@ -203,6 +210,8 @@ class TrainingRun:
                 # written before the logger's state was saved: resumed without it
                 saved = components
             RunCheckpoint(self._source, saved, config={}).load(self._source)
+        # the run starts: Hydra's record of it is this launch's
+        write_hydra_record(self.run_dir, cfg)
         self.logger = get_run_logger(
             cfg.logger.backend,
             self.run_dir,
@@ -254,11 +263,14 @@ class TrainingRun:
             else:
                 where = first_non_finite({name: value})
             if where is not None:
+                kept = (
+                    self._checkpoint.left_as_it_was()
+                    if getattr(self, "_checkpoint", None) is not None
+                    else ""
+                )
                 raise NonFiniteRun(
                     f"{where} is not finite at {frames} frames: the run diverged "
-                    f"and stops. Its last checkpoint in {self.run_dir} is finite "
-                    "and left as it was: resume from it with other settings (a "
-                    "smaller learning rate or coefficient) in a new run directory."
+                    f"and stops. {kept} {DIVERGED_ADVICE}".replace("  ", " ")
                 )
 
     def log(self, metrics: Mapping[str, float], step: int) -> None:

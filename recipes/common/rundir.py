@@ -24,7 +24,7 @@ from .checkpoint import (
     verify_archive,
 )
 from .errors import MissingRunFile, ResumeRefused, RunAlreadyThere, UserMistake
-from .files import RunWriteError, remove_path, write_atomically
+from .files import remove_path, write_atomically
 from .scalar_logs import scalar_log_files, truncate_scalar_logs
 from .status import STATUS_NAME, read_run_status
 
@@ -158,6 +158,14 @@ def unused_bonus_sections(config: Mapping[str, Any]) -> tuple[str, ...]:
     )
 
 
+FORMER_BEHAVIOUR: dict[str, Any] = {
+    # E3B's first state of an episode joins its memory by default since 0.2.0
+    "intrinsic.e3b.start_in_memory": False,
+}
+"""Settings added with a default that changes what a run computes, each with the
+value that keeps the behaviour of a checkpoint written before it existed."""
+
+
 def config_differences(
     saved: Mapping[str, Any],
     current: Mapping[str, Any],
@@ -167,7 +175,9 @@ def config_differences(
 
     A setting absent from ``saved`` is one that a newer version of the recipe
     added after the checkpoint was written; its default is meant to keep the old
-    behaviour, so it is not counted (a setting that was removed is).
+    behaviour, so it is not counted (a setting that was removed is), unless its
+    default does not (:data:`FORMER_BEHAVIOUR`): then it is compared with the
+    value that gives the old behaviour.
 
     Args:
         saved: the config a checkpoint was written under (nested mapping).
@@ -185,6 +195,10 @@ def config_differences(
         []
     """
     old, new = _flatten(saved), _flatten(current)
+    for name, former in FORMER_BEHAVIOUR.items():
+        section = name.rsplit(".", 1)[0] + "."
+        if name not in old and any(key.startswith(section) for key in old):
+            old[name] = former
     diffs = []
     for name in sorted(old):
         if any(name == a or name.startswith(a + ".") for a in allowed):
@@ -301,9 +315,10 @@ class RunDirInUse(UserMistake, RuntimeError):
 class RunLock:
     """Makes one process at a time the owner of a run directory.
 
-    An exclusive ``fcntl.flock`` on the run directory itself; ``<run_dir>/run.lock``
-    holds the owner's pid and host, to name it in the message that refuses
-    another process. The kernel releases the lock when its process ends, however
+    An exclusive ``fcntl.flock`` on the run directory itself, and a ``lockf`` on
+    ``<run_dir>/run.lock`` (NFS has no ``flock`` on directories across machines;
+    its file locks go through the server), which holds the owner's pid and host
+    to name it in the message that refuses another process. The kernel releases the lock when its process ends, however
     it ends (a SIGKILL, a node's crash), so a dead run never leaves the directory
     stuck, and deleting ``run.lock`` (the usual reflex for a "stale lock")
     releases nothing. Written here rather than with ``filelock``, which locks a
@@ -335,11 +350,13 @@ class RunLock:
 
         self.path = Path(run_dir) / LOCK_NAME
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._fd = None
+        self._fd = self._file = None
         self._fd = os.open(self.path.parent, os.O_RDONLY)
         try:
             fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
+            self._file = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            fcntl.lockf(self._file, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:  # held (BlockingIOError, EACCES), or no lock here (ENOLCK)
             holder = self.holder()
             self.release()
             raise RunDirInUse(
@@ -347,11 +364,9 @@ class RunLock:
                 "runs in a run directory. Wait for that run to end (or stop it), or "
                 "pass another hydra.run.dir."
             ) from None
-        try:
-            write_atomically(self.path, f"{os.getpid()} {socket.gethostname()}\n")
-        except RunWriteError:
-            self.release()
-            raise
+        # in place: the lock is on this file
+        os.ftruncate(self._file, 0)
+        os.pwrite(self._file, f"{os.getpid()} {socket.gethostname()}\n".encode(), 0)
 
     def holder(self) -> str:
         """``"process <pid> on <host>"``, as the lock file says."""
@@ -363,9 +378,11 @@ class RunLock:
 
     def release(self) -> None:
         """Releases the lock (the process's end does it as well)."""
-        if self._fd is not None:
-            os.close(self._fd)
-            self._fd = None
+        for name in ("_file", "_fd"):
+            fd = getattr(self, name, None)
+            if fd is not None:
+                os.close(fd)
+                setattr(self, name, None)
 
     __del__ = release
 

@@ -119,8 +119,10 @@ def hydra_path_override(key: str, path: str | os.PathLike) -> str:
     path = str(path)
     if re.fullmatch(r"[A-Za-z0-9_./:+-]+", path):
         return shlex.quote(f"{key}={path}")
-    # a quoted Hydra value: backslashes and single quotes escaped
-    value = "'" + path.replace("\\", "\\\\").replace("'", "\\'") + "'"
+    # A quoted Hydra value: a quote is escaped, and so are the backslashes before
+    # a quote or the closing one (Hydra keeps any other backslash as it is).
+    value = re.sub(r"(\\*)'", lambda m: m.group(1) * 2 + "\\'", path)
+    value = "'" + re.sub(r"(\\+)$", lambda m: m.group(1) * 2, value) + "'"
     return shlex.quote(f"{key}={value}")
 
 
@@ -158,7 +160,8 @@ def sweep_requested(argv: Sequence[str]) -> bool:
         False
     """
     return any(
-        arg in ("-m", "--multirun") or arg.replace(" ", "") == "hydra.mode=MULTIRUN"
+        arg in ("-m", "--multirun")
+        or arg.replace(" ", "").lstrip("+") == "hydra.mode=MULTIRUN"
         for arg in argv[1:]
     )
 

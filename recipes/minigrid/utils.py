@@ -13,6 +13,7 @@ from torchrl.data import LazyTensorStorage, ReplayBuffer, SamplerWithoutReplacem
 from torchrl.envs.transforms import RewardClipping
 from torchrl.objectives import A2CLoss, ClipPPOLoss
 
+from common.checkpoint import DIVERGED_ADVICE
 from common.errors import NonFiniteRun
 from common.minigrid import make_advantage
 
@@ -292,9 +293,8 @@ class SampledCategoricalPolicy(TensorDictModuleBase):
             if not torch.isfinite(logits).all():
                 raise NonFiniteRun(
                     "the policy's logits are not finite: the run diverged and "
-                    "stops. Its last checkpoint is finite and left as it was: "
-                    "resume from it with other settings (a smaller learning rate "
-                    "or coefficient) in a new run directory."
+                    "stops; its last checkpoint, if it saved one, is finite. "
+                    + DIVERGED_ADVICE
                 ) from err
             raise
         tensordict.set(self._hidden_key, hidden)

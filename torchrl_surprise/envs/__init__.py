@@ -45,6 +45,7 @@ _LAZY = {
     "barrier_seed": ("envpool", "envpool"),
     "ENVPOOL_PAPER_TASKS": ("envpool", "envpool"),
     "register_minigrid_envs": ("minigrid_ids", "minigrid"),
+    "UnknownMiniGridTask": ("minigrid_ids", "minigrid"),
     "OracleSolution": ("oracle", "minigrid"),
     "oracle_returns": ("oracle", "minigrid"),
     "oracle_table": ("oracle", "minigrid"),
@@ -101,4 +102,5 @@ __all__ = [
     "oracle_table",
     "register_minigrid_envs",
     "solve_minigrid",
+    "UnknownMiniGridTask",
 ]

@@ -90,7 +90,10 @@ from torchrl.data import (
 )
 from torchrl.envs import EnvBase
 
-from torchrl_surprise.envs.minigrid_ids import register_minigrid_envs
+from torchrl_surprise.envs.minigrid_ids import (
+    UnknownMiniGridTask,
+    register_minigrid_envs,
+)
 
 __all__ = [
     "ENVPOOL_PAPER_TASKS",
@@ -184,7 +187,7 @@ def envpool_minigrid_task(env_name: str) -> tuple[str, dict[str, Any]]:
     if env_name in known:
         return env_name, {}
     close = difflib.get_close_matches(env_name, known, n=5, cutoff=0.6)
-    raise ValueError(
+    raise UnknownMiniGridTask(
         f"envpool has no MiniGrid task {env_name!r}. "
         + (f"Close matches: {', '.join(close)}. " if close else "")
         + f"It has {len(known)} MiniGrid/BabyAI tasks, e.g. "

@@ -12,12 +12,19 @@ import difflib
 import gymnasium as gym
 
 __all__ = [
+    "UnknownMiniGridTask",
     "MULTIROOM_N3_S4",
     "MULTIROOM_N4_S4",
     "PAPER_MULTIROOM_IDS",
     "check_minigrid_id",
     "register_minigrid_envs",
 ]
+
+
+class UnknownMiniGridTask(ValueError):
+    """An env id the MiniGrid backend asked for does not have (the message names
+    the closest ones)."""
+
 
 MULTIROOM_N3_S4 = "MiniGrid-MultiRoom-N3-S4-v0"
 """MultiRoom with exactly 3 rooms of size at most 4 (max_steps 60)."""
@@ -83,7 +90,7 @@ def check_minigrid_id(env_name: str) -> None:
     known = known_minigrid_ids()
     close = difflib.get_close_matches(env_name, known, n=5, cutoff=0.6)
     suggestions = close if close else known[:5]
-    raise ValueError(
+    raise UnknownMiniGridTask(
         f"Unknown MiniGrid environment id {env_name!r}. "
         f"{'Did you mean' if close else 'Known ids include'}: "
         f"{', '.join(suggestions)} ({len(known)} MiniGrid/BabyAI ids are registered)."

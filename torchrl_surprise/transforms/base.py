@@ -488,6 +488,8 @@ class IntrinsicRewardTransform(Transform):
         """A frozen copy with its own statistics that shares the bonus model."""
         other = self.clone()
         other.reward_rms = copy.deepcopy(self.reward_rms)
+        if self.normalization == "e3b_std":
+            other.e3b_moments = copy.deepcopy(self.e3b_moments)
         other.frames = self.frames.clone()
         other._return_acc = self._return_acc.clone()
         return other.freeze()
