@@ -41,6 +41,7 @@ from torchrl_surprise.envs.minigrid import (  # noqa: E402
     PAPER_MULTIROOM_IDS,
     make_minigrid_env,
 )
+from torchrl_surprise.envs.minigrid_ids import UnknownMiniGridTask  # noqa: E402
 from torchrl_surprise.envs.oracle import oracle_returns, solve_minigrid  # noqa: E402
 
 DOORKEY = "MiniGrid-DoorKey-8x8-v0"
@@ -511,6 +512,13 @@ def test_errors():
     with pytest.raises(ValueError, match="MiniGrid-DoorKey-8x8-v0") as err:
         make_minigrid_env("MiniGrid-DoorKye-8x8-v0", backend="envpool")
     assert "envpool has no MiniGrid task 'MiniGrid-DoorKye-8x8-v0'" in str(err.value)
+    assert "backend='gymnasium'" not in str(err.value)  # no such task anywhere
+    # minigrid's -v1 MultiRoom: the backend that runs it is named before the
+    # close envpool id (-v0 is another task)
+    with pytest.raises(UnknownMiniGridTask) as err:
+        make_minigrid_env("MiniGrid-MultiRoom-N4-S5-v1", backend="envpool")
+    message = str(err.value)
+    assert message.index("backend='gymnasium'") < message.index("N4-S5-v0")
     with pytest.raises(ValueError, match="backend must be one of"):
         make_minigrid_env(DOORKEY, backend="jax")
     with pytest.raises(ValueError, match="num_threads"):

@@ -255,3 +255,14 @@ def test_a_resume_whose_logs_do_not_reach_its_checkpoint_is_refused(
     assert proc.returncode == 0, proc.stderr[-3000:]
     proc = launch(MAIN, run_dir, *TINY, "collector.total_frames=256")
     assert_one_message(proc, "logger.backend=''", "resume_without_logs")
+
+
+def test_nothing_to_do_changes_nothing(tmp_path, finished_run):
+    # A budget below the frames done: nothing runs, and the run's record (Hydra's
+    # overrides included) keeps the budget it ran with.
+    run_dir = tmp_path / "run"
+    shutil.copytree(finished_run, run_dir)
+    before = snapshot(run_dir)
+    proc = launch(MAIN, run_dir, *TINY, "collector.total_frames=64")
+    assert proc.returncode == 0 and "Nothing to do" in proc.stdout, proc.stderr
+    assert snapshot(run_dir) == before

@@ -36,7 +36,7 @@ from .rundir import (
     RunDirInUse,
     RunLock,
     prepare_run,
-    write_hydra_record,
+    write_run_record,
 )
 from .stopping import (
     StopSignal,
@@ -210,8 +210,8 @@ class TrainingRun:
                 # written before the logger's state was saved: resumed without it
                 saved = components
             RunCheckpoint(self._source, saved, config={}).load(self._source)
-        # the run starts: Hydra's record of it is this launch's
-        write_hydra_record(self.run_dir, cfg)
+        # the run starts: its record (resolved config, Hydra's) is this launch's
+        write_run_record(self.run_dir, cfg)
         self.logger = get_run_logger(
             cfg.logger.backend,
             self.run_dir,

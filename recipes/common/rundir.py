@@ -221,8 +221,9 @@ def prepare_run(cfg, run_dir: str | os.PathLike) -> tuple[Path, dict[str, Any] |
     once; without a checkpoint the run starts at frame 0, and the rows a run
     killed before its first checkpoint left in ``<run_dir>/logs`` go.
     ``resume=false`` refuses a directory that already holds a checkpoint, so that
-    nothing computed is overwritten. Writes ``config_resolved.yaml`` once the
-    checks pass.
+    nothing computed is overwritten. The run's record (``config_resolved.yaml``,
+    Hydra's ``.hydra/``) is written when the run starts (:func:`write_run_record`),
+    not here: a run with nothing to do keeps the record it ran with.
 
     A resume also refuses a damaged checkpoint (:class:`DamagedCheckpoint`,
     naming the earlier one ``checkpoint.keep`` kept), a damaged scalar log
@@ -300,7 +301,6 @@ def prepare_run(cfg, run_dir: str | os.PathLike) -> tuple[Path, dict[str, Any] |
         truncate_scalar_logs(run_dir / "logs", -1)
         ckpt_path = run_dir / CHECKPOINT_NAME
     run_dir.mkdir(parents=True, exist_ok=True)
-    write_atomically(run_dir / "config_resolved.yaml", OmegaConf.to_yaml(config))
     return ckpt_path, info
 
 
@@ -390,6 +390,17 @@ class RunLock:
 HYDRA_RECORD = ".hydra"
 """Hydra's record of a run in its directory (``config.yaml``, ``hydra.yaml``,
 ``overrides.yaml``, what Hydra writes with ``hydra.output_subdir=.hydra``)."""
+
+
+def write_run_record(run_dir: str | os.PathLike, cfg) -> None:
+    """Writes the run's record as it starts: ``config_resolved.yaml`` (the
+    resolved config) and Hydra's ``.hydra/`` (:func:`write_hydra_record`)."""
+    from omegaconf import OmegaConf
+
+    config = OmegaConf.to_container(cfg, resolve=True)
+    path = Path(run_dir) / "config_resolved.yaml"
+    write_atomically(path, OmegaConf.to_yaml(config))
+    write_hydra_record(run_dir, cfg)
 
 
 def write_hydra_record(run_dir: str | os.PathLike, cfg) -> Path | None:

@@ -79,6 +79,7 @@ import functools
 from types import SimpleNamespace
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -187,8 +188,18 @@ def envpool_minigrid_task(env_name: str) -> tuple[str, dict[str, Any]]:
     if env_name in known:
         return env_name, {}
     close = difflib.get_close_matches(env_name, known, n=5, cutoff=0.6)
+    register_minigrid_envs()
+    # A task of minigrid's Python envs only: its backend runs it, a close envpool
+    # id would be another task.
+    python_only = (
+        f"{env_name!r} is a task of minigrid's Python envs: run it with "
+        "backend='gymnasium'. "
+        if env_name in gym.registry
+        else ""
+    )
     raise UnknownMiniGridTask(
         f"envpool has no MiniGrid task {env_name!r}. "
+        + python_only
         + (f"Close matches: {', '.join(close)}. " if close else "")
         + f"It has {len(known)} MiniGrid/BabyAI tasks, e.g. "
         f"{', '.join(known[:3])}; see envpool_minigrid_tasks()."
@@ -835,7 +846,6 @@ def minigrid_env_from_envpool_state(
         >>> bool((env.unwrapped.gen_obs()["image"] == obs["image"][0]).all())
         True
     """
-    import gymnasium as gym
 
     # minigrid's ids and the paper's MultiRoom ids, in gymnasium's registry
     register_minigrid_envs()
