@@ -509,14 +509,27 @@ def official_running_std(batches, batch_size):
     return torch.sqrt(reward_m2 / reward_count)
 
 
-def test_e3b_std_divides_by_the_statistic_of_e3b_code():
+@pytest.mark.parametrize("envs", [2, 12])  # one learner batch of E3B's, or 8 + 4
+def test_e3b_std_divides_by_the_statistic_of_e3b_code(envs):
     # A bonus of mean ~1: E3B's statistic is several times the bonus's std.
     model = E3BModel.for_vector(3, 2, embedding_dim=8, hidden_dim=8)
     transform = E3BTransform(model, normalization="e3b_std", reward_key=None)
     batches = []
     for _ in range(3):
-        td = revisiting_batch()
-        td["next", "observation"] = torch.randn(2, 6, 3)
+        td = timed(
+            TensorDict(
+                {
+                    "observation": torch.randn(envs, 6, 3),
+                    "action": torch.randn(envs, 6, 2),
+                    "next": {
+                        "observation": torch.randn(envs, 6, 3),
+                        "reward": torch.zeros(envs, 6, 1),
+                        "done": torch.rand(envs, 6, 1) < 0.2,
+                    },
+                },
+                [envs, 6],
+            )
+        )
         out = transform(td)
         raw = out["next", "intrinsic_reward"][..., 0]
         batches.append(raw.T)  # [T, envs], time first as E3B's learner batch
