@@ -1654,7 +1654,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         seed=args.seed,
         meta=meta,
     )
+    _report(data, meta, oracle, [runs_csv, *paths.values()])
+    return 0
 
+
+def _report(data, meta, oracle, written) -> None:
+    """What an aggregation prints: seeds per setting, what it could not
+    normalise, the runs unfinished or not logging yet, the files written."""
     counts = data.groupby(["task", "setting"])["seed"].nunique()
     for (task, setting), seeds in counts.items():
         print(f"{task}  {setting}: {seeds} seeds")
@@ -1669,8 +1675,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             )
         for _, run in meta[meta["last_frame"].isna()].iterrows():
             print(f"No scalars logged yet, left out: {run['run_dir']}")
-    print("Wrote " + ", ".join(str(p) for p in [runs_csv, *paths.values()]))
-    return 0
+    print("Wrote " + ", ".join(str(p) for p in written))
 
 
 def _regenerate_all(parser: argparse.ArgumentParser, args) -> int:
