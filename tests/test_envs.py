@@ -323,3 +323,16 @@ def test_mujoco_unknown_id():
         make_mujoco_env("CartPole-v1")
     with pytest.raises(ValueError, match="num_envs"):
         make_mujoco_env("HalfCheetah-v5", num_envs=0)
+
+
+def test_mujoco_not_installed_names_the_extra_that_installs_it(monkeypatch):
+    # As without the [mujoco] extra: `import mujoco` fails, so gymnasium's MuJoCo
+    # package raises its own DependencyNotInstalled when (re)imported.
+    monkeypatch.setitem(sys.modules, "mujoco", None)
+    for name in list(sys.modules):
+        if name.startswith("gymnasium.envs.mujoco"):
+            monkeypatch.delitem(sys.modules, name)
+    with pytest.raises(ModuleNotFoundError) as err:
+        make_mujoco_env("HalfCheetah-v5")
+    assert 'pip install "torchrl_surprise[mujoco]"' in str(err.value)
+    assert err.value.name == "mujoco"

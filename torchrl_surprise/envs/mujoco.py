@@ -11,7 +11,6 @@ import functools
 from typing import Any
 
 import gymnasium as gym
-from gymnasium.envs.mujoco import MujocoEnv
 from torchrl.envs import DoubleToFloat, EnvBase, TransformedEnv
 
 from torchrl_surprise.envs.vector import SingleGymEnv, VectorGymWrapper
@@ -20,6 +19,25 @@ __all__ = ["PAPER_MUJOCO_IDS", "make_mujoco_env"]
 
 PAPER_MUJOCO_IDS: tuple[str, ...] = ("HalfCheetah-v5", "Hopper-v5", "Walker2d-v5")
 """The paper's MuJoCo tasks (``-v1`` in the paper, ``-v5`` here)."""
+
+
+def _mujoco_env_class() -> type:
+    """Gymnasium's ``MujocoEnv``, or one error naming the extra that installs it.
+
+    Gymnasium registers its MuJoCo ids without ``mujoco`` installed, and raises
+    its own ``DependencyNotInstalled`` (not an ``ImportError``) on the first
+    ``gym.make``; this module imports without ``mujoco`` and says what to install.
+    """
+    try:
+        from gymnasium.envs.mujoco import MujocoEnv
+    except (ImportError, gym.error.DependencyNotInstalled) as err:
+        raise ModuleNotFoundError(
+            "torchrl_surprise.envs.make_mujoco_env needs MuJoCo ('mujoco' and "
+            "gymnasium's MuJoCo envs), which is not installed: "
+            'pip install "torchrl_surprise[mujoco]".',
+            name="mujoco",
+        ) from err
+    return MujocoEnv
 
 
 def _known_mujoco_ids() -> list[str]:
@@ -44,7 +62,7 @@ def _check_mujoco_id(env_name: str) -> None:
 
 
 def _check_is_mujoco(env_name: str, env: gym.Env) -> None:
-    if not isinstance(env.unwrapped, MujocoEnv):
+    if not isinstance(env.unwrapped, _mujoco_env_class()):
         raise ValueError(
             f"{env_name!r} is a registered gymnasium id but not a MuJoCo env "
             f"(got {type(env.unwrapped).__name__})."
@@ -90,6 +108,8 @@ def make_mujoco_env(
     Raises:
         ValueError: if ``env_name`` is not a registered MuJoCo id (the message lists
             close matches) or ``num_envs < 1``.
+        ModuleNotFoundError: MuJoCo is not installed; the message gives the
+            command that installs it, ``pip install "torchrl_surprise[mujoco]"``.
 
     Examples:
         >>> from torchrl_surprise.envs import make_mujoco_env
@@ -101,6 +121,7 @@ def make_mujoco_env(
     """
     if not isinstance(num_envs, int) or num_envs < 1:
         raise ValueError(f"num_envs must be a positive int, got {num_envs!r}.")
+    _mujoco_env_class()
     _check_mujoco_id(env_name)
     if num_envs == 1:
         base = SingleGymEnv(env_name, device=device)
