@@ -14,6 +14,15 @@ from tensordict import TensorDictBase
 
 from .scalar_logs import find_scalar_log, read_scalar_csv
 
+__all__ = [
+    "EVAL_SEED_OFFSET",
+    "EpisodeStats",
+    "Evaluation",
+    "evaluate",
+    "plot_learning_curves",
+    "plot_run_curves",
+]
+
 
 class EpisodeStats:
     """Finished-episode statistics from collected batches, with a moving window.
@@ -182,13 +191,18 @@ def plot_learning_curves(
     title: str = "",
     xlabel: str = "frames",
     ylabel: str = "return",
+    optimum: tuple[str, float] | None = None,
 ) -> Path:
     """Plots named ``(x, y)`` curves into a PNG with matplotlib's Agg backend.
+
+    ``optimum``, ``(label, value)``: a dashed horizontal line at ``value``, the
+    best return of the task (the MiniGrid oracle's), named in the legend.
 
     Examples:
         >>> import tempfile, os
         >>> out = plot_learning_curves({"a": ([0, 1], [0.0, 1.0])},
-        ...                            os.path.join(tempfile.mkdtemp(), "c.png"))
+        ...                            os.path.join(tempfile.mkdtemp(), "c.png"),
+        ...                            optimum=("oracle", 0.8))
         >>> out.exists()
         True
     """
@@ -200,11 +214,13 @@ def plot_learning_curves(
     fig, ax = plt.subplots(figsize=(6, 4))
     for name, (x, y) in curves.items():
         ax.plot(x, y, label=name, marker="." if len(x) < 50 else None)
+    if optimum is not None:
+        ax.axhline(optimum[1], color="0.3", linestyle="--", label=optimum[0])
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     if title:
         ax.set_title(title)
-    if len(curves) > 1:
+    if len(curves) + (optimum is not None) > 1:
         ax.legend()
     ax.grid(alpha=0.3)
     fig.tight_layout()
@@ -222,13 +238,19 @@ def plot_run_curves(
     *,
     title: str = "",
     ylabel: str = "",
+    optimum: tuple[str, float] | None = None,
 ) -> Path | None:
     """Plots logged scalars against frames, read back from the run's CSV logs.
+
+    Every backend but ``logger.backend=`` (none) leaves them: TorchRL's
+    ``CSVLogger``, or the copy :class:`common.scalar_logs.ScalarCSVWriter` keeps
+    beside TensorBoard, W&B and MLflow.
 
     Args:
         log_dir: the run's ``logs`` directory.
         curves: scalar name (``"train/episode_return"``) -> its label.
         path: the PNG to write.
+        optimum: ``(label, value)``, a dashed line (:func:`plot_learning_curves`).
 
     Returns:
         ``path``, or ``None`` (nothing drawn) when the run logged none of the
@@ -245,4 +267,4 @@ def plot_run_curves(
         data[label] = (steps[finite], values[finite])
     if not data:
         return None
-    return plot_learning_curves(data, path, title=title, ylabel=ylabel)
+    return plot_learning_curves(data, path, title=title, ylabel=ylabel, optimum=optimum)

@@ -53,6 +53,7 @@ __all__ = [
     "make_bonus",
     "make_collector",
     "make_env",
+    "oracle_optimum",
     "rollout_metrics",
     "shared_trunk",
     "train_bonus_model",
@@ -435,6 +436,43 @@ def load_bonus_model(
                 "latent; this run's starts afresh."
             )
     return int(ckpt.get("frames", 0))
+
+
+ORACLE_LAYOUTS = 20
+"""The layouts :func:`oracle_optimum` solves: its line is their mean return."""
+
+
+def oracle_optimum(env_name: str, seed: int, stochasticity: int = 0):
+    """The oracle's mean return on ``env_name``, ``(label, value)``, for the
+    learning curve's dashed line; ``None`` for a task the oracle does not solve.
+
+    :func:`torchrl_surprise.envs.oracle_returns` on :data:`ORACLE_LAYOUTS` layouts
+    of minigrid's envs from ``seed`` on (the evaluation's seeds): the best return
+    of an agent that sees the whole grid, the return the results pages divide by
+    (``oracle_return``). envpool's layouts of the same task have the same mean
+    within a percent (docs/results/oracle). Under ``env.stochasticity`` no agent
+    reaches it: the line is then labelled noise-free.
+
+    Examples:
+        >>> label, value = oracle_optimum("MiniGrid-DoorKey-5x5-v0", seed=0)
+        >>> label, round(value, 2)
+        ('oracle (mean of 20 layouts)', 0.96)
+    """
+    import gymnasium as gym
+
+    from torchrl_surprise.envs import oracle_returns
+
+    try:
+        solutions = oracle_returns(env_name, range(seed, seed + ORACLE_LAYOUTS))
+    except (TypeError, ValueError, gym.error.Error):
+        # not a goal or pickup task the oracle solves (Fetch, ...), or no minigrid
+        # env of that id
+        return None
+    value = sum(s.episode_return for s in solutions) / len(solutions)
+    label = f"oracle (mean of {ORACLE_LAYOUTS} layouts)"
+    if stochasticity:
+        label = f"noise-free {label}"
+    return label, value
 
 
 def documented_results_message(

@@ -38,6 +38,7 @@ from .rundir import (
     prepare_run,
     write_run_record,
 )
+from .scalar_logs import ScalarCSVWriter
 from .stopping import (
     StopSignal,
     exit_process,
@@ -46,6 +47,11 @@ from .stopping import (
     resume_command,
     submitit_requeue,
 )
+
+__all__ = ["CURVE_NAME", "TrainingRun"]
+
+CURVE_NAME = "learning_curve.png"
+"""The learning curve a run draws when it ends, in its run directory."""
 
 
 class TrainingRun:
@@ -128,6 +134,7 @@ class TrainingRun:
             raise
         self._source = source if self.resumed_from else None
         self.logger = None
+        self._scalar_copy: ScalarCSVWriter | None = None
         self.progress_bar = None
         self.counters: RunCounters | None = None
         self._checkpoint: RunCheckpoint | None = None
@@ -222,6 +229,13 @@ class TrainingRun:
             purge_after=self.counters.frames if self._source is not None else None,
         )
         logger_state.logger = self.logger
+        # The learning curve is drawn from CSV rows: a run logging elsewhere
+        # keeps them too (CSV's own are the logger's; none without a logger).
+        self._scalar_copy = (
+            ScalarCSVWriter(self.run_dir / "logs" / self.name)
+            if cfg.logger.backend not in ("csv", "")
+            else None
+        )
         self._stop = StopSignal()
         self._on_exit = tuple(on_exit)
         if show_progress is None:
@@ -274,10 +288,14 @@ class TrainingRun:
                 )
 
     def log(self, metrics: Mapping[str, float], step: int) -> None:
-        """Logs each scalar of ``metrics`` at ``step`` (nothing without a logger)."""
+        """Logs each scalar of ``metrics`` at ``step`` (nothing without a logger),
+        and keeps it as a CSV row when the logger is not CSV's (the curve's)."""
         if self.logger is not None:
             for name, value in metrics.items():
                 self.logger.log_scalar(name, value, step=step)
+        if self._scalar_copy is not None:
+            for name, value in metrics.items():
+                self._scalar_copy.add_scalar(name, value, step)
 
     def after_update(self) -> None:
         """The end of an iteration (updates done, logs written): progress, the
@@ -292,6 +310,8 @@ class TrainingRun:
             return
         self._checkpoint.save()
         end_logger_run(self.logger, "KILLED")
+        if self._scalar_copy is not None:
+            self._scalar_copy.close()
         self.progress_bar.close()
         for close in self._on_exit:
             close()
@@ -321,13 +341,16 @@ class TrainingRun:
         curves: Mapping[str, str],
         title: str = "",
         ylabel: str = "",
+        optimum: tuple[str, float] | None = None,
     ) -> Path | None:
         """The final checkpoint, the learning curve and the summary.
 
         Args:
             summary: what the run reached (printed after ``Done: ``).
             curves: logged scalar -> label, drawn into ``learning_curve.png``
-                (:func:`plot_run_curves`).
+                (:func:`plot_run_curves`) whatever the logger (none without one).
+            optimum: ``(label, value)``, the task's best return, drawn as a
+                dashed line (the MiniGrid oracle's); ``None``: no line.
 
         Returns:
             The learning curve's path (``None`` when nothing was logged).
@@ -336,21 +359,35 @@ class TrainingRun:
         self.progress_bar.close()
         self._checkpoint.save()
         end_logger_run(self.logger, "FINISHED")
+        if self._scalar_copy is not None:
+            self._scalar_copy.close()
         for close in self._on_exit:
             close()
         curve = plot_run_curves(
             self.run_dir / "logs",
             curves,
-            self.run_dir / "learning_curve.png",
+            self.run_dir / CURVE_NAME,
             title=title,
             ylabel=ylabel,
+            optimum=optimum,
+        )
+        drawn = (
+            curve
+            if curve is not None
+            else f"none ({_no_curve_reason(self.cfg.logger.backend, curves)})"
         )
         print(
-            f"Done: {summary}\nLearning curve: {curve}\n"
+            f"Done: {summary}\nLearning curve: {drawn}\n"
             f"Logs: {self.run_dir / 'logs'}\nRun directory: {self.run_dir}"
         )
         self._lock.release()
         return curve
+
+
+def _no_curve_reason(backend: str, curves: Mapping[str, str]) -> str:
+    if backend == "":
+        return "logger.backend='' logs no scalars"
+    return f"no finite value of {', '.join(curves) or 'any scalar'} was logged"
 
 
 def _resolved(cfg) -> dict[str, Any]:

@@ -10,6 +10,15 @@ import numpy as np
 from .errors import UserMistake
 from .files import write_atomically
 
+__all__ = [
+    "DamagedLog",
+    "ScalarCSVWriter",
+    "find_scalar_log",
+    "read_scalar_csv",
+    "scalar_log_files",
+    "truncate_scalar_logs",
+]
+
 
 class DamagedLog(UserMistake, ValueError):
     """A scalar log with a line that is not a ``step,value`` row; the message
@@ -115,3 +124,51 @@ def find_scalar_log(log_dir: str | os.PathLike, name: str) -> Path:
     if not matches:
         raise FileNotFoundError(f"no scalar log {name!r} under {log_dir}")
     return matches[0]
+
+
+class ScalarCSVWriter:
+    """Writes scalars as TorchRL's ``CSVLogger`` does, one ``step,value`` row each.
+
+    A run that logs to TensorBoard, W&B or MLflow keeps its scalars here as well,
+    under ``<run dir>/logs/<experiment>/scalars/<name>.csv``: its learning curve
+    is drawn from them (:func:`common.evaluation.plot_run_curves`), and a resume
+    cuts them at the checkpoint as it cuts a CSV run's (:func:`truncate_scalar_logs`).
+    Each row is flushed when written: what a checkpoint follows is on disk.
+
+    Args:
+        log_dir: the experiment's folder, ``<run dir>/logs/<experiment>``.
+
+    Examples:
+        >>> import tempfile
+        >>> log_dir = Path(tempfile.mkdtemp()) / "demo"
+        >>> with ScalarCSVWriter(log_dir) as writer:
+        ...     writer.add_scalar("train/x", 0.5, step=64)
+        >>> read_scalar_csv(find_scalar_log(log_dir.parent, "train/x"))
+        (array([64]), array([0.5]))
+    """
+
+    def __init__(self, log_dir: str | os.PathLike):
+        self.log_dir = Path(log_dir)
+        self._files: dict[str, object] = {}
+
+    def add_scalar(self, name: str, value: float, step: int) -> None:
+        """Appends the row ``step,value`` to ``scalars/<name>.csv``."""
+        file = self._files.get(name)
+        if file is None:
+            path = self.log_dir / "scalars" / f"{name}.csv"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            file = self._files[name] = path.open("a")
+        file.write(f"{int(step)},{float(value)}\n")
+        file.flush()
+
+    def close(self) -> None:
+        """Closes the files (a later :meth:`add_scalar` opens them again)."""
+        for file in self._files.values():
+            file.close()
+        self._files.clear()
+
+    def __enter__(self) -> ScalarCSVWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -60,6 +60,7 @@ from common.minigrid import (
     make_bonus,
     make_collector,
     make_env,
+    oracle_optimum,
     rollout_metrics,
     shared_trunk,
     train_bonus_model,
@@ -385,6 +386,7 @@ def finish(cfg, run: TrainingRun, t: Training, frames: int, fps: float) -> None:
         curves={"train/episode_return": cfg.bonus},
         title=f"{cfg.env.name}: {algo.upper()} + {cfg.bonus} (seed {cfg.seed})",
         ylabel=f"extrinsic return ({cfg.logger.episode_window}-episode mean)",
+        optimum=oracle_optimum(cfg.env.name, t.eval_seed, cfg.env.stochasticity),
     )
     if cfg.eval.video:
         # The final policy on the evaluation's first episodes, as a GIF (and to a
