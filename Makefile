@@ -33,7 +33,7 @@ docs: $(STAMP)
 	$(PY) -m sphinx -W --keep-going -b html docs docs/_build/html
 
 # Every table and figure of docs/results recomputed from the committed per-run data
-# (each experiment's runs.csv, each heatmap summary's rows per run and layout; no
+# (each experiment's runs.csv.xz, each heatmap summary's rows per run and layout; no
 # run directory or checkpoint needed), then the suite's table from its tasks' (3 seeds
 # make the full pass of the tasks whose budgets make 5 unaffordable: docs/results.rst).
 SUITE_DIRS = $(filter-out %_16x128/ %_64x32/,$(wildcard docs/results/suite_*/))
@@ -42,7 +42,7 @@ figures: $(STAMP)
 	$(PY) recipes/results/suite.py $(SUITE_DIRS) --task-min-seeds KeyCorridorS6R3=3 \
 		--task-min-seeds ObstructedMaze-1Dlhb=3 --task-min-seeds ObstructedMaze-2Dlhb=3 \
 		--published docs/results/suite_published.csv --out docs/results/suite
-	for rows in docs/results/heatmaps/*_layouts.csv; do \
+	for rows in docs/results/heatmaps/*_layouts.csv.xz; do \
 		$(PY) recipes/results/heatmap.py --from-layouts $$rows || exit 1; \
 	done
 

@@ -193,7 +193,7 @@ def test_final_scores_are_the_per_seed_values_the_summary_aggregates(sweep):
 def test_oracle_normalises_only_the_tasks_it_knows(sweep):
     row = summary_row(sweep["out"], MINIGRID, "bonus=vae,intrinsic.coef=0.1")
     assert bool(row["normalized"]) and row["oracle_return"] == ORACLE_RETURN
-    runs = read(sweep["out"], "runs.csv")
+    runs = read(sweep["out"], "runs.csv.xz")
     raw = runs[
         (runs["task"] == MINIGRID)
         & (runs["seed"] == 0)
@@ -229,7 +229,7 @@ def test_frames_to_threshold_per_seed_and_censoring(sweep):
 
 
 def test_a_step_logged_twice_keeps_its_last_value(sweep):
-    runs = read(sweep["out"], "runs.csv")
+    runs = read(sweep["out"], "runs.csv.xz")
     mine = runs[
         (runs["setting"] == "bonus=none")
         & (runs["seed"] == 0)
@@ -285,7 +285,7 @@ def test_probability_of_improvement_is_rliables_to_the_bit():
 
 def test_from_data_regenerates_identical_tables(sweep, tmp_path):
     out = sweep["out"]
-    argv = ["--from-data", str(out / "runs.csv"), "--out", str(tmp_path)]
+    argv = ["--from-data", str(out / "runs.csv.xz"), "--out", str(tmp_path)]
     np.random.seed(123)
     expected = np.random.rand()
     np.random.seed(123)
@@ -312,15 +312,17 @@ def test_a_sweep_aggregated_in_parts_equals_it_aggregated_at_once(sweep, tmp_pat
     assert main([str(runs / "minigrid"), "--out", str(part), *common]) == 0
     assert set(read(part, "summary.csv")["task"]) == {MINIGRID}
     whole = tmp_path / "whole"
-    argv = [str(runs / "cheetah"), "--from-data", str(part / "runs.csv")]
+    argv = [str(runs / "cheetah"), "--from-data", str(part / "runs.csv.xz")]
     assert main([*argv, "--out", str(whole), *common]) == 0
-    for name in ("runs.csv", "runs_meta.csv", "summary.csv", "report.csv"):
+    for name in ("runs.csv.xz", "runs_meta.csv", "summary.csv", "report.csv"):
         assert (whole / name).read_bytes() == (sweep["out"] / name).read_bytes(), name
     # in place, and again: a rerun replaces each run by itself
     for _ in range(2):
-        argv = [str(runs / "cheetah"), "--from-data", str(part / "runs.csv")]
+        argv = [str(runs / "cheetah"), "--from-data", str(part / "runs.csv.xz")]
         assert main([*argv, "--out", str(part), *common]) == 0
-        assert (part / "runs.csv").read_bytes() == (whole / "runs.csv").read_bytes()
+        assert (part / "runs.csv.xz").read_bytes() == (
+            whole / "runs.csv.xz"
+        ).read_bytes()
 
 
 def test_earlier_data_without_its_runs_meta_merges_and_reads_as_finished(
@@ -335,9 +337,11 @@ def test_earlier_data_without_its_runs_meta_merges_and_reads_as_finished(
     assert main([str(runs / "minigrid"), "--out", str(part), *common]) == 0
     (part / "runs_meta.csv").unlink()
     out = tmp_path / "out"
-    argv = [str(runs / "cheetah"), "--from-data", str(part / "runs.csv")]
+    argv = [str(runs / "cheetah"), "--from-data", str(part / "runs.csv.xz")]
     assert main([*argv, "--out", str(out), *common]) == 0
-    assert (out / "runs.csv").read_bytes() == (sweep["out"] / "runs.csv").read_bytes()
+    assert (out / "runs.csv.xz").read_bytes() == (
+        sweep["out"] / "runs.csv.xz"
+    ).read_bytes()
     status = (out / "status.rst").read_text()
     assert status == (sweep["out"] / "status.rst").read_text()
     # the sweep covers two tasks, so each setting is named with its task; the
@@ -393,7 +397,7 @@ def test_the_status_of_unfinished_runs_needs_the_scores_that_hold_them(sweep):
 
 
 def test_settings_keeps_only_the_runs_of_those_settings(sweep, tmp_path):
-    runs, data = sweep["root"] / "runs", sweep["out"] / "runs.csv"
+    runs, data = sweep["root"] / "runs", sweep["out"] / "runs.csv.xz"
     common = ["--oracle", str(sweep["oracle"]), "--reps", str(REPS)]
     vae = "bonus=vae,intrinsic.coef=0.1"  # the MiniGrid runs' label
     some = [vae, "cheetah_vae"]
@@ -401,9 +405,9 @@ def test_settings_keeps_only_the_runs_of_those_settings(sweep, tmp_path):
     out = tmp_path / "some"
     argv = [str(runs / "cheetah"), "--from-data", str(data), "--settings", *some]
     assert main([*argv, "--out", str(out), *common]) == 0
-    full = read(sweep["out"], "runs.csv")
+    full = read(sweep["out"], "runs.csv.xz")
     expected = full[full["setting"].isin(some)].reset_index(drop=True)
-    pd.testing.assert_frame_equal(read(out, "runs.csv"), expected)
+    pd.testing.assert_frame_equal(read(out, "runs.csv.xz"), expected)
     assert set(read(out, "runs_meta.csv")["setting"]) == set(some)
     assert set(read(out, "summary.csv")["setting"]) == set(some)
 
@@ -418,20 +422,20 @@ def test_settings_keeps_only_the_runs_of_those_settings(sweep, tmp_path):
     alone = tmp_path / "alone"
     argv = ["--from-data", str(data), "--settings", "none", "--out", str(alone)]
     assert main([*argv, *common]) == 0
-    assert set(read(alone, "runs.csv")["setting"]) == {"none"}
+    assert set(read(alone, "runs.csv.xz")["setting"]) == {"none"}
 
 
 def test_tasks_keeps_only_the_runs_of_those_tasks(sweep, tmp_path):
-    data = sweep["out"] / "runs.csv"
+    data = sweep["out"] / "runs.csv.xz"
     common = ["--oracle", str(sweep["oracle"]), "--reps", str(REPS)]
     out = tmp_path / "cheetah"
     argv = ["--from-data", str(data), "--tasks", CHEETAH, "--settings", "none"]
     assert main([*argv, "--out", str(out), *common]) == 0
-    full = read(sweep["out"], "runs.csv")
+    full = read(sweep["out"], "runs.csv.xz")
     keep = (full["task"] == CHEETAH) & (full["setting"] == "none")
     expected = full[keep].reset_index(drop=True)
     # (the selected returns happen to be whole numbers: read back as integers)
-    pd.testing.assert_frame_equal(read(out, "runs.csv"), expected, check_dtype=False)
+    pd.testing.assert_frame_equal(read(out, "runs.csv.xz"), expected, check_dtype=False)
     assert set(read(out, "runs_meta.csv")["task"]) == {CHEETAH}
     assert set(read(out, "summary.csv")["task"]) == {CHEETAH}
 
@@ -446,7 +450,7 @@ def test_tasks_keeps_only_the_runs_of_those_tasks(sweep, tmp_path):
 def test_a_selection_in_place_or_without_runs_is_refused(
     sweep, tmp_path, capsys, option, kept, absent, present
 ):
-    data = sweep["out"] / "runs.csv"
+    data = sweep["out"] / "runs.csv.xz"
     common = ["--oracle", str(sweep["oracle"]), "--reps", str(REPS)]
     # in place it would drop committed runs: refused, the file untouched
     before = data.read_bytes()
@@ -469,21 +473,21 @@ def test_adding_a_shorter_run_than_the_committed_one_is_refused(
 ):
     out = tmp_path / "out"
     out.mkdir()
-    for name in ("runs.csv", "runs_meta.csv"):
+    for name in ("runs.csv.xz", "runs_meta.csv"):
         (out / name).write_bytes((sweep["out"] / name).read_bytes())
-    before = (out / "runs.csv").read_bytes()
+    before = (out / "runs.csv.xz").read_bytes()
     # seed 0 of cheetah_vae again, killed at 4000 frames where the data has 10000
     cheetah_run(tmp_path / "again", "cheetah_vae", 0, 4000)
-    argv = [str(tmp_path / "again"), "--from-data", str(out / "runs.csv")]
+    argv = [str(tmp_path / "again"), "--from-data", str(out / "runs.csv.xz")]
     with pytest.raises(SystemExit):
         main([*argv, "--out", str(out), "--oracle", "none", "--reps", str(REPS)])
     err = capsys.readouterr().err
     assert "seed 0" in err and "cheetah_vae_0" in err and "reached frame 4000" in err
     assert "10000" in err and "longer run" in err
-    assert (out / "runs.csv").read_bytes() == before
+    assert (out / "runs.csv.xz").read_bytes() == before
     # the same run further on replaces it; every other run is kept
     cheetah_run(tmp_path / "further", "cheetah_vae", 1, 10000)
-    argv = [str(tmp_path / "further"), "--from-data", str(out / "runs.csv")]
+    argv = [str(tmp_path / "further"), "--from-data", str(out / "runs.csv.xz")]
     assert main([*argv, "--out", str(out), "--oracle", "none", "--reps", "10"]) == 0
     meta = read(out, "runs_meta.csv").set_index(["task", "setting", "seed"])
     assert len(meta) == 12 and meta.loc[(CHEETAH, "cheetah_vae", 1), "finished"]
@@ -659,10 +663,10 @@ def test_all_regenerates_every_experiment_of_a_results_dir(sweep, tmp_path):
     shutil.copytree(sweep["out"], results / "a")
     b = results / "nested" / "b"
     b.mkdir(parents=True)
-    for name in ("runs.csv", "runs_meta.csv"):
+    for name in ("runs.csv.xz", "runs_meta.csv"):
         shutil.copy(results / "a" / name, b / name)
     oracle = ["--oracle", str(sweep["oracle"]), "--reps", str(REPS)]
-    args = ["--from-data", str(b / "runs.csv"), *oracle, "--budget", "600"]
+    args = ["--from-data", str(b / "runs.csv.xz"), *oracle, "--budget", "600"]
     assert main([*args, "--out", str(b)]) == 0
     tables = ("summary.csv", "probability_of_improvement.csv", "report.csv")
     expected = {p: p.read_bytes() for p in results.glob("**/*.csv") if p.name in tables}
@@ -676,6 +680,60 @@ def test_all_regenerates_every_experiment_of_a_results_dir(sweep, tmp_path):
     for path, content in expected.items():
         assert path.read_bytes() == content, path
     assert set(pd.read_csv(results / "nested" / "b" / "summary.csv")["budget"]) == {600}
+
+
+def test_the_data_is_an_xz_csv_and_earlier_plain_data_is_read_and_replaced(
+    sweep, tmp_path
+):
+    import lzma
+    import shutil
+
+    xz = (sweep["out"] / "runs.csv.xz").read_bytes()
+    plain = lzma.decompress(xz)  # a CSV any tool reads, compressed
+    assert plain.startswith(b"task,setting,seed,frames,metric,value\n")
+    assert len(xz) < len(plain) / 5
+    # data committed before as a plain runs.csv: read, and its directory's data
+    # rewritten as the compressed file with the same bytes inside
+    study = tmp_path / "study"
+    study.mkdir()
+    (study / "runs.csv").write_bytes(plain)
+    shutil.copy(sweep["out"] / "runs_meta.csv", study / "runs_meta.csv")
+    common = ["--oracle", str(sweep["oracle"]), "--reps", str(REPS)]
+    argv = ["--from-data", str(study / "runs.csv"), "--tasks"]
+    assert (
+        main(
+            [*argv, *sorted(set(read(sweep["out"], "summary.csv")["task"]))]
+            + ["--out", str(tmp_path / "copy"), *common]
+        )
+        == 0
+    )
+    assert (tmp_path / "copy" / "runs.csv.xz").read_bytes() == xz
+    runs = sweep["root"] / "runs"
+    argv = [str(runs / "minigrid"), "--from-data", str(study / "runs.csv")]
+    assert main([*argv, "--out", str(study), *common]) == 0
+    assert not (study / "runs.csv").exists()
+    assert (study / "runs.csv.xz").is_file()
+
+
+def test_all_redraws_only_the_figures_a_study_holds(sweep, tmp_path):
+    import shutil
+
+    study = tmp_path / "results" / "study"
+    shutil.copytree(sweep["out"], study)
+    (study / "performance_profiles.png").unlink()
+    os.utime(study / "curves.png", (0, 0))
+    argv = ["--all", str(tmp_path / "results"), "--oracle", str(sweep["oracle"])]
+    assert main([*argv, "--reps", str(REPS)]) == 0
+    assert (study / "curves.png").stat().st_mtime > 0  # redrawn
+    assert not (study / "performance_profiles.png").exists()  # a figure no page shows
+    # a single study draws every figure unless told otherwise
+    out = tmp_path / "one"
+    argv = ["--from-data", str(study / "runs.csv.xz"), "--out", str(out)]
+    common = ["--oracle", str(sweep["oracle"]), "--reps", str(REPS)]
+    assert main([*argv, *common]) == 0
+    assert (out / "performance_profiles.png").is_file()
+    assert main([*argv, *common, "--out", str(tmp_path / "none"), "--figures"]) == 0
+    assert not list((tmp_path / "none").glob("*.png"))
 
 
 def test_all_refuses_a_dir_without_data_and_mixed_arguments(tmp_path, capsys):
@@ -892,7 +950,7 @@ def test_label_keys_tell_apart_runs_of_one_setting(tmp_path, capsys):
         main(
             [
                 "--from-data",
-                str(out / "runs.csv"),
+                str(out / "runs.csv.xz"),
                 "--out",
                 str(tmp_path / "x"),
                 "--label-keys",

@@ -383,7 +383,7 @@ def test_summary_over_runs_and_layouts(tmp_path, capsys):
         + ["--open-doors", "--out", str(out)]
     )
     assert path == out
-    layouts = pd.read_csv(out.with_name("n3s4_categories_layouts.csv"))
+    layouts = pd.read_csv(out.with_name("n3s4_categories_layouts.csv.xz"))
     assert sorted(layouts["layout_seed"].unique()) == [0, 1]
     per_run = {}
     for run_dir, transform in runs:
@@ -422,7 +422,7 @@ def test_summary_over_runs_and_layouts(tmp_path, capsys):
     assert len(report) == len(summary)
     assert f"{doorway['runs_above_average']} of 2" in set(report.iloc[:, -1])
     # the same summary and table from the rows per run and layout alone
-    layouts_csv = out.with_name("n3s4_categories_layouts.csv")
+    layouts_csv = out.with_name("n3s4_categories_layouts.csv.xz")
     again = tmp_path / "again"
     again.mkdir()
     copied = again / layouts_csv.name

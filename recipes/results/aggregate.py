@@ -10,7 +10,7 @@ and a second one regenerates every table and figure from the committed per-run
 data alone, without the run directories::
 
     python recipes/results/aggregate.py \\
-        --from-data docs/results/n3s4/runs.csv --out docs/results/n3s4 \\
+        --from-data docs/results/n3s4/runs.csv.xz --out docs/results/n3s4 \\
         --oracle docs/results/oracle/oracle_returns.csv
 
 Given both, the run directories' runs are added to the committed data (a run of
@@ -20,7 +20,7 @@ the same task, setting and seed replaced by one that got at least as far, see
 ``seed=1`` elsewhere, each part aggregated into the same results::
 
     python recipes/results/aggregate.py runs/ddpg_mujoco/figure3 \\
-        --from-data docs/results/figure3/runs.csv --out docs/results/figure3
+        --from-data docs/results/figure3/runs.csv.xz --out docs/results/figure3
 
 ``--settings S [S ...]`` keeps only the runs of those settings, for instance a
 study that compares new runs with one setting of committed results (written to
@@ -28,21 +28,21 @@ an ``--out`` other than the ``--from-data`` file's directory, whose runs it woul
 drop otherwise)::
 
     python recipes/results/aggregate.py runs/ppo_minigrid/transfer_n4s4 \\
-        --from-data docs/results/ppo_n4s4/runs.csv --settings vae_elliptical \\
+        --from-data docs/results/ppo_n4s4/runs.csv.xz --settings vae_elliptical \\
         vae_elliptical_from_n3s4 vae_elliptical_from_n3s4_frozen \\
         vae_elliptical_untrained --out docs/results/ppo_transfer_n4s4
 
 ``--tasks T [T ...]`` does the same for tasks (env ids).
 
 ``--all docs/results`` does that for every experiment under ``docs/results`` (each
-directory holding a ``runs.csv``, at the budget its ``summary.csv`` was written
+directory holding a ``runs.csv.xz``, at the budget its ``summary.csv`` was written
 with); ``make figures`` runs it.
 
 Other options: ``--budget FRAMES`` (the frame count at which final performance is
 read; default: per task, the largest frame count that every run of the task
 reached), ``--reps`` (bootstrap replications, default 2000), ``--seed`` (of the
 bootstrap, default 0) and ``--max-points`` (points kept per run and metric in
-``runs.csv``, default 200).
+``runs.csv.xz``, default 200).
 
 **Runs.** A run directory is any directory under the given paths holding
 ``config_resolved.yaml`` (keys read: ``env.name``, ``seed``, ``bonus``,
@@ -67,8 +67,11 @@ output say.
 
 **Outputs** (in ``--out``):
 
-- ``runs.csv``: the committed per-run data, ``task,setting,seed,frames,metric,value``
-  for the metrics of :data:`METRICS` a run logged, at most ``--max-points`` points
+- ``runs.csv.xz``: the committed per-run data, an xz-compressed CSV
+  ``task,setting,seed,frames,metric,value`` (``xzcat``, ``pandas.read_csv`` and
+  every CSV tool read it; xz keeps a study's curves at about a twentieth of the
+  plain CSV, and its bytes depend on the data alone, so a regenerated file is
+  the committed one) for the metrics of :data:`METRICS` a run logged, at most ``--max-points`` points
   per run and metric (evenly spaced by index, the last point always kept), raw
   (unnormalised) values. Everything below is computed from this file alone, so
   frame counts (first crossings) have the resolution of the kept points, about
@@ -128,7 +131,7 @@ import sys
 import textwrap
 import warnings
 import zlib
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -182,10 +185,12 @@ __all__ = [
     "report_table",
     "status_text",
     "runs_metadata",
+    "runs_file",
     "setting_label",
     "split_level",
     "summarize",
     "unfinished_runs",
+    "write_runs_file",
 ]
 
 #: The scalars read from each run, and the short names of their summary columns.
@@ -209,7 +214,13 @@ EPISODES_METRIC = "train/episodes"
 EPISODE_WINDOW = 100
 
 _RUN_KEYS = ["task", "setting", "seed"]
-#: The columns of ``runs.csv``.
+#: The name of the per-run data file an aggregation writes.
+RUNS_FILE = "runs.csv.xz"
+#: The names it is read under: the compressed file, or a plain CSV of earlier data.
+RUNS_FILES = (RUNS_FILE, "runs.csv")
+#: The figures :func:`aggregate` can draw.
+FIGURES = ("curves.png", "performance_profiles.png", "levels.png")
+#: The columns of ``runs.csv.xz``.
 _DATA_COLUMNS = [*_RUN_KEYS, "frames", "metric", "value"]
 _NOT_REACHED = "not reached"
 
@@ -349,7 +360,7 @@ def _downsample(n: int, max_points: int) -> np.ndarray:
 
 
 def extract_run_data(runs: Sequence[RunInfo], max_points: int = 200) -> pd.DataFrame:
-    """The long table of ``runs.csv``: ``task,setting,seed,frames,metric,value``.
+    """The long table of ``runs.csv.xz``: ``task,setting,seed,frames,metric,value``.
 
     Reads the metrics of :data:`METRICS` and :data:`EPISODES_METRIC` that each
     run logged (a step logged twice
@@ -444,13 +455,13 @@ def merge_run_data(
 
     A sweep too long for one machine or one session runs in parts (a subset of
     its jobs, e.g. ``seed=0`` on the command line); each part's run directories
-    are aggregated together with the ``runs.csv`` (and ``runs_meta.csv``) the
+    are aggregated together with the ``runs.csv.xz`` (and ``runs_meta.csv``) the
     earlier parts left. A run of ``data`` (same task, setting and seed) replaces
     the earlier one when it got at least as far; one that got less far is
     refused, so that nothing already computed is lost.
 
     Args:
-        earlier (pd.DataFrame): a ``runs.csv`` table, as :func:`extract_run_data`
+        earlier (pd.DataFrame): a ``runs.csv.xz`` table, as :func:`extract_run_data`
             writes it.
         earlier_meta (pd.DataFrame | None): its ``runs_meta.csv`` table, or
             ``None`` when it has none (its runs are then listed with their last
@@ -547,10 +558,10 @@ def keep_runs(
     settings: Sequence[str] | None = None,
     tasks: Sequence[str] | None = None,
 ) -> tuple[pd.DataFrame, pd.DataFrame | None]:
-    """The runs of some settings and tasks, in ``runs.csv`` data and its metadata.
+    """The runs of some settings and tasks, in ``runs.csv.xz`` data and its metadata.
 
     Args:
-        data: ``runs.csv`` data (columns ``task``, ``setting``, ...).
+        data: ``runs.csv.xz`` data (columns ``task``, ``setting``, ...).
         meta: its ``runs_meta.csv``, or None.
         settings: keep only these settings (None: all).
         tasks: keep only these tasks, env ids (None: all).
@@ -1294,8 +1305,35 @@ def plot_profiles(
     return _save(fig, Path(path), title)
 
 
+def write_runs_file(data: pd.DataFrame, path: Path) -> Path:
+    """Writes per-run data as ``runs.csv.xz`` does: six significant digits, xz.
+
+    The file's bytes depend on the data alone (xz stores no time or name), so
+    rewriting the same data leaves a committed file unchanged.
+
+    Args:
+        data: a table of :data:`_DATA_COLUMNS`, as :func:`extract_run_data` returns.
+        path: the file; a name ending in ``.xz`` is compressed, any other is not.
+
+    Returns:
+        ``path``.
+    """
+    compression = {"method": "xz", "preset": 9} if str(path).endswith(".xz") else None
+    data.to_csv(path, index=False, float_format="%.6g", compression=compression)
+    return Path(path)
+
+
+def runs_file(directory: Path) -> Path | None:
+    """The per-run data file of a results directory (:data:`RUNS_FILES`), or None."""
+    for name in RUNS_FILES:
+        if (Path(directory) / name).is_file():
+            return Path(directory) / name
+    return None
+
+
 def _read_runs_csv(path: Path) -> pd.DataFrame:
-    # Labels such as "none" or "NA" are settings, not missing values.
+    # Labels such as "none" or "NA" are settings, not missing values; the
+    # compression follows the file's name (runs.csv.xz or a plain runs.csv).
     return pd.read_csv(
         path,
         dtype={"task": str, "setting": str, "metric": str},
@@ -1470,6 +1508,7 @@ def aggregate(
     reps: int = 2000,
     seed: int = 0,
     meta: pd.DataFrame | None = None,
+    figures: Collection[str] | None = None,
 ) -> dict[str, Path]:
     """Writes every table and figure computed from the per-run data into ``out``.
 
@@ -1478,6 +1517,7 @@ def aggregate(
     ``frames_to_threshold.csv``, ``probability_of_improvement.csv``,
     ``curves.png`` and ``performance_profiles.png`` (see the module description),
     and ``levels.png`` when settings were run at several noise levels.
+    ``figures`` names the figures to draw (None: all of :data:`FIGURES`).
 
     Returns:
         The path of each output, by file name.
@@ -1500,15 +1540,19 @@ def aggregate(
     for name, table in tables.items():
         paths[name] = out / name
         table.to_csv(paths[name], index=False)
-    paths["curves.png"] = plot_curves(
-        data, out / "curves.png", oracle, budget, reps, seed
-    )
-    paths["performance_profiles.png"] = plot_profiles(
-        data, out / "performance_profiles.png", oracle, budget, reps, seed
-    )
-    levels = plot_levels(tables["summary.csv"], out / "levels.png")
-    if levels is not None:
-        paths["levels.png"] = levels
+    figures = FIGURES if figures is None else set(figures)
+    if "curves.png" in figures:
+        paths["curves.png"] = plot_curves(
+            data, out / "curves.png", oracle, budget, reps, seed
+        )
+    if "performance_profiles.png" in figures:
+        paths["performance_profiles.png"] = plot_profiles(
+            data, out / "performance_profiles.png", oracle, budget, reps, seed
+        )
+    if "levels.png" in figures:
+        levels = plot_levels(tables["summary.csv"], out / "levels.png")
+        if levels is not None:
+            paths["levels.png"] = levels
     return paths
 
 
@@ -1535,14 +1579,14 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--from-data",
         type=Path,
-        help="a runs.csv written before: recompute everything from it alone, or "
+        help="a runs.csv.xz (or runs.csv) written before: recompute everything from it alone, or "
         "with run directories, add their runs to it (merge_run_data)",
     )
     parser.add_argument(
         "--all",
         type=Path,
         metavar="RESULTS_DIR",
-        help="regenerate every experiment under RESULTS_DIR (each <dir>/runs.csv, "
+        help="regenerate every experiment under RESULTS_DIR (each <dir>/runs.csv.xz, "
         "at the budget of its summary.csv) from its committed data",
     )
     parser.add_argument("--out", type=Path, help="output directory")
@@ -1577,6 +1621,15 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--max-points", type=int, default=200, help="points per run and metric kept"
     )
+    parser.add_argument(
+        "--figures",
+        nargs="*",
+        choices=FIGURES,
+        default=None,
+        metavar="FIGURE",
+        help=f"draw only these figures ({', '.join(FIGURES)}; default: all, "
+        "--all: those the directory holds); --figures alone draws none",
+    )
     return parser
 
 
@@ -1587,7 +1640,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.label_keys and not args.runs:
         parser.error(
             "--label-keys labels the runs of run directories: give them (the "
-            "labels of --from-data and --all are those their runs.csv holds)"
+            "labels of --from-data and --all are those their data holds)"
         )
     if args.all is not None:
         if args.runs or args.from_data is not None or args.out is not None:
@@ -1634,8 +1687,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                         "the selection to another --out."
                     )
             args.out.mkdir(parents=True, exist_ok=True)
-            runs_csv = args.out / "runs.csv"
-            data.to_csv(runs_csv, index=False, float_format="%.6g")
+            runs_csv = args.out / RUNS_FILE
+            write_runs_file(data, runs_csv)
+            stale = args.out / "runs.csv"
+            if stale.is_file() and stale.resolve() != runs_csv.resolve():
+                stale.unlink()  # superseded by the compressed file just written
             meta.to_csv(args.out / "runs_meta.csv", index=False)
     except (FileNotFoundError, ValueError) as error:
         parser.error(str(error))
@@ -1653,6 +1709,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         reps=args.reps,
         seed=args.seed,
         meta=meta,
+        figures=args.figures,
     )
     _report(data, meta, oracle, [runs_csv, *paths.values()])
     return 0
@@ -1679,10 +1736,14 @@ def _report(data, meta, oracle, written) -> None:
 
 
 def _regenerate_all(parser: argparse.ArgumentParser, args) -> int:
-    """``--all``: every ``runs.csv`` under the directory, recomputed in place."""
-    found = sorted(args.all.glob("**/runs.csv"))
+    """``--all``: every study under the directory, recomputed in place."""
+    found = sorted(
+        path
+        for path in map(runs_file, {p.parent for p in args.all.glob("**/runs.csv*")})
+        if path is not None
+    )
     if not found:
-        parser.error(f"no runs.csv under {args.all}")
+        parser.error(f"no {RUNS_FILE} (or runs.csv) under {args.all}")
     for runs_csv in found:
         argv = ["--from-data", str(runs_csv), "--out", str(runs_csv.parent)]
         summary = runs_csv.with_name("summary.csv")
@@ -1697,6 +1758,8 @@ def _regenerate_all(parser: argparse.ArgumentParser, args) -> int:
         if args.oracle is not None:
             argv += ["--oracle", *map(str, args.oracle)]
         argv += ["--reps", str(args.reps), "--seed", str(args.seed)]
+        # the figures the directory holds: a figure no page shows is not redrawn
+        argv += ["--figures", *(n for n in FIGURES if (runs_csv.parent / n).is_file())]
         print(f"== {runs_csv.parent}", flush=True)
         main(argv)
     return 0

@@ -63,11 +63,11 @@ the category above the average (:func:`summarize_categories`)::
         --out docs/results/heatmaps/doorkey8x8_categories.csv
 
 writes the summary there, beside it the rows per run and layout
-(``doorkey8x8_categories_layouts.csv``) and the summary formatted for the docs
+(``doorkey8x8_categories_layouts.csv.xz``) and the summary formatted for the docs
 (``doorkey8x8_categories_report.csv``, :func:`summary_report`).
-``--from-layouts doorkey8x8_categories_layouts.csv`` recomputes the summary and
+``--from-layouts doorkey8x8_categories_layouts.csv.xz`` recomputes the summary and
 its table from those rows alone (``make figures`` does it for every
-``docs/results/heatmaps/*_layouts.csv``).
+``docs/results/heatmaps/*_layouts.csv.xz``).
 """
 
 from __future__ import annotations
@@ -1285,7 +1285,10 @@ def summary_report(summary):
     )
 
 
-_LAYOUTS_SUFFIX = "_layouts.csv"
+#: The per-layout rows' file, xz-compressed as aggregate.py's runs.csv.xz; a
+#: plain ``_layouts.csv`` of earlier data is read as well.
+_LAYOUTS_SUFFIX = "_layouts.csv.xz"
+_LAYOUTS_SUFFIXES = (_LAYOUTS_SUFFIX, "_layouts.csv")
 
 
 def _summary_main(args, sources: Sequence[str]) -> Path:
@@ -1297,8 +1300,9 @@ def _summary_main(args, sources: Sequence[str]) -> Path:
             raise FileNotFoundError(f"{layouts_path} does not exist")
         table = pd.read_csv(layouts_path, float_precision="round_trip")
         name = layouts_path.name
-        default = (
-            name[: -len(_LAYOUTS_SUFFIX)] if name.endswith(_LAYOUTS_SUFFIX) else None
+        default = next(
+            (name[: -len(end)] for end in _LAYOUTS_SUFFIXES if name.endswith(end)),
+            None,
         )
         if args.out is None and default is None:
             raise ValueError(
@@ -1319,7 +1323,8 @@ def _summary_main(args, sources: Sequence[str]) -> Path:
     out.parent.mkdir(parents=True, exist_ok=True)
     report_path = out.with_name(out.stem + "_report.csv")
     if args.from_layouts is None:
-        table.to_csv(layouts_path, index=False)
+        xz = {"method": "xz", "preset": 9}
+        table.to_csv(layouts_path, index=False, compression=xz)
     summary.to_csv(out, index=False)
     summary_report(summary).to_csv(report_path, index=False)
     doors = "doors open" if table["open_doors"].all() else "doors as generated"
