@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import csv
+import re
 import subprocess
 import sys
 from pathlib import Path
+
+import pandas as pd
 
 DOCS = Path(__file__).resolve().parent.parent / "docs"
 
@@ -84,3 +88,64 @@ def test_documented_commands_leave_their_globs_to_the_shell() -> None:
     assert len(lines) > 50  # the docs' commands were found
     quoted = {where: _quoted_globs(line) for where, line in lines}
     assert {where: words for where, words in quoted.items() if words} == {}
+
+
+# ---------------------------------------------- the "which bonus" table's numbers
+
+_SCORE = re.compile(r"(-?\d+\.\d+) \[(-?\d+\.\d+), (-?\d+\.\d+)\]")
+_BUDGET = {"k": 1_000, "M": 1_000_000}
+
+
+def _which_bonus_rows() -> list[tuple[str, list[str]]]:
+    # (where, cells) of the README's table and of docs/results.rst's "What to use"
+    rows = []
+    readme = (ROOT / "README.md").read_text().split("## Which bonus to use", 1)[1]
+    for line in readme.split("\n## ", 1)[0].splitlines():
+        cells = [cell.strip() for cell in line.strip().strip("|").split("|")]
+        if line.startswith("| ") and not cells[0].startswith(("situation", "---")):
+            rows.append(("README.md", cells))
+    page = (DOCS / "results.rst").read_text()
+    table = page.split(".. csv-table:: Which bonus to use", 1)[1].split("\n\n", 2)[1]
+    lines = (line.strip() for line in table.splitlines())
+    for cells in csv.reader(lines, skipinitialspace=True):
+        rows.append(("docs/results.rst", [cell.strip() for cell in cells]))
+    return rows
+
+
+def _setting(cell: str) -> str:
+    found = re.search(r"(?:\+setting|bonus)=(\w+)", cell)
+    assert found, f"no +setting= or bonus= in {cell!r}"
+    # bonus=vae runs the recipes' default variant, the elliptical VAE bonus
+    return "vae_elliptical" if found.group() == "bonus=vae" else found.group(1)
+
+
+def test_the_which_bonus_tables_read_their_numbers_from_committed_summaries():
+    rows = _which_bonus_rows()
+    assert sum(where == "README.md" for where, _ in rows) >= 5
+    readme = [cells for where, cells in rows if where == "README.md"]
+    page = [cells for where, cells in rows if where != "README.md"]
+
+    # the results page's table is the README's, row for row (markup aside)
+    def plain(rows):
+        return [[cell.replace("`", "") for cell in cells[:5]] for cells in rows]
+
+    assert plain(page) == plain(readme)
+    for where, (situation, setting, _, score, budget, data) in rows:
+        study = re.search(r"docs/results/(\w+)", data) or re.search(r"(\w+)", data)
+        summary = pd.read_csv(
+            ROOT / "docs" / "results" / study.group(1) / "summary.csv",
+            keep_default_na=False,
+        )
+        name = _setting(setting)
+        found = summary[
+            (summary["setting"] == name) | summary["setting"].str.startswith(name + ",")
+        ]
+        assert len(found) == 1, f"{where}, {situation!r}: {name} in {study.group(1)}"
+        row = found.iloc[0]
+        iqm, low, high = _SCORE.search(score).groups()
+        shown = [float(iqm), float(low), float(high)]
+        stored = [row[f"train_return_{k}"] for k in ("iqm", "ci_low", "ci_high")]
+        assert shown == [round(v, 2) for v in stored], f"{where}, {situation!r}"
+        frames, seeds = (part.strip() for part in budget.split(","))
+        assert int(float(frames[:-1]) * _BUDGET[frames[-1]]) == row["budget"]
+        assert int(seeds) == row["seeds"], f"{where}, {situation!r}: seeds"
