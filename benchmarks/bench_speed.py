@@ -733,18 +733,510 @@ def machine() -> dict:
     }
 
 
-def main(argv: list[str] | None = None) -> dict:
+# ---- the items --------------------------------------------------------------------
+@dataclass
+class Bench:
+    """What the items share: the command line, the plan, a scratch directory for
+    the recipes' runs, and what they report (targets, details, peak memory)."""
+
+    args: argparse.Namespace
+    plan: Plan
+    tmp: Path
+    targets: list[Target] = field(default_factory=list)
+    details: dict = field(default_factory=dict)
+    rss: dict[str, int] = field(default_factory=dict)
+
+    def note(self, line: str) -> None:
+        self.details.setdefault("notes", []).append(line)
+
+
+def by_setup(samples: dict[str, list[Sample]], unit: str, *extra: str) -> dict:
+    """Each setup's samples, their load averages and the ``extra`` entries' values."""
+    return {
+        k: {
+            unit: [s.value for s in v],
+            **{e: [s.extra[e] for s in v] for e in extra},
+            "load1": [s.load1 for s in v],
+        }
+        for k, v in samples.items()
+    }
+
+
+def item_bonus_overhead(b: Bench) -> None:
+    print("[1] A2C recipe (defaults): bonus vs none, frames/s", flush=True)
+    plan, tmp = b.plan, b.tmp
+    setups = {
+        n: lambda n=n: a2c_recipe(n, None, plan.a2c_frames, tmp)
+        for n in ["none", *BONUSES]
+    }
+    for label, extra in VAE_SCHEDULES.items():
+        setups[label] = lambda extra=extra: a2c_recipe(
+            "vae", None, plan.a2c_frames, tmp, extra=extra
+        )
+    samples = interleave(setups, plan.rounds)
+    b.details["a2c_bonus"] = by_setup(samples, "frames_per_s")
+    for n in [*BONUSES, *VAE_SCHEDULES]:
+        b.targets.append(
+            Target(
+                1,
+                f"A2C {n} / none (frames/s)",
+                paired_ratio(samples, n, "none"),
+                0.90,
+                note=f"{med(samples[n]):,.0f} / {med(samples['none']):,.0f}",
+            )
+        )
+    b.rss["a2c"] = max(s.extra["maxrss_bytes"] for v in samples.values() for s in v)
+
+
+def item_ddpg(b: Bench) -> None:
+    print("[2] DDPG recipe (Hopper-v5) vs bare eager update, updates/s")
+    plan, tmp = b.plan, b.tmp
+    b.details["products_gflops"] = product_gflops()
+    samples = interleave(
+        {
+            "bare eager": lambda: bare_ddpg(plan.bare_updates),
+            "none": lambda: ddpg_recipe("none", plan.ddpg_frames, tmp),
+            "vae": lambda: ddpg_recipe("vae", plan.ddpg_frames, tmp),
+        },
+        plan.rounds,
+    )
+    b.details["ddpg"] = by_setup(samples, "updates_per_s")
+    bare, none = med(samples["bare eager"]), med(samples["none"])
+    b.targets.append(
+        Target(
+            2,
+            "DDPG recipe none / bare eager (updates/s)",
+            paired_ratio(samples, "none", "bare eager"),
+            1.0,
+            note=f"{none:,.0f} / {bare:,.0f}; stretch 1.5x",
+        )
+    )
+    b.targets.append(
+        Target(
+            2,
+            "DDPG recipe vae / none (updates/s)",
+            paired_ratio(samples, "vae", "none"),
+            0.85,
+            note=f"{med(samples['vae']):,.0f} / {none:,.0f}",
+        )
+    )
+    b.rss["ddpg"] = max(
+        s.extra["maxrss_bytes"]
+        for k, v in samples.items()
+        if k != "bare eager"
+        for s in v
+    )
+
+
+def item_peer(b: Bench) -> None:
+    print("[3] A2C recipe (bonus=none) vs torch-ac 1.4.0, frames/s")
+    if importlib.util.find_spec("torch_ac") is None:
+        msg = (
+            "skipped: torch-ac is not installed "
+            '(pip install -e ".[bench]" installs torch-ac==1.4.0)'
+        )
+        print(f"    {msg}")
+        for env_name in PEER_ENVS:
+            b.targets.append(
+                Target(3, f"A2C ours / torch-ac, {env_name}", None, PEER_GOAL, note=msg)
+            )
+        return
+    plan, tmp, threads = b.plan, b.tmp, b.args.peer_threads
+    b.details["peer"] = {"threads": threads}
+    for env_name in PEER_ENVS:
+        samples = interleave(
+            {
+                "ours": lambda e=env_name: a2c_recipe("none", e, plan.peer_frames, tmp),
+                "ours, envpool": lambda e=env_name: a2c_recipe(
+                    "none", e, plan.peer_frames, tmp, extra=["env.backend=envpool"]
+                ),
+                "torch-ac": lambda e=env_name: peer(e, plan.peer_frames, threads),
+            },
+            plan.rounds,
+        )
+        b.details["peer"][env_name] = by_setup(samples, "frames_per_s")
+        for ours, label in (("ours", ""), ("ours, envpool", ", envpool")):
+            b.targets.append(
+                Target(
+                    3,
+                    f"A2C ours{label} / torch-ac, {env_name.removeprefix('MiniGrid-')}",
+                    paired_ratio(samples, ours, "torch-ac"),
+                    PEER_GOAL,
+                    note=f"{med(samples[ours]):,.0f} / {med(samples['torch-ac']):,.0f}",
+                )
+            )
+
+
+def item_env_pipeline(b: Bench) -> None:
+    from torchrl_surprise.envs import make_minigrid_env, make_mujoco_env
+
+    # One process, one thread: its CPU time is what the steps cost, less
+    # sensitive than wall time to the other jobs on a shared machine.
+    print("[4] env pipeline vs a raw gymnasium loop, steps per CPU second")
+    b.details["envs"] = {}
+    pipelines = [
+        (e, A2C_NUM_ENVS, make_minigrid_env) for e in MINIGRID_PIPELINE_ENVS
+    ] + [(e, DDPG_NUM_ENVS, make_mujoco_env) for e in MUJOCO_PIPELINE_ENVS]
+    torch.set_num_threads(1)
+    for env_name, n, factory in pipelines:
+        env_pipeline(b, env_name, n, factory)
+
+
+def env_pipeline(b: Bench, env_name: str, n: int, factory: Callable) -> None:
+    """Item 4 for one env: ``factory`` (and envpool's, for MiniGrid) over the raw loop."""
+    from torchrl_surprise.envs import make_minigrid_env
+
+    steps = b.plan.env_steps
+    ours = f"{factory.__name__}(num_envs={n})"
+    setups = {
+        ours: lambda: ours_env(lambda: factory(env_name, num_envs=n, seed=0), steps),
+        "raw gymnasium": lambda: raw_env(env_name, steps),
+    }
+    envpool = f"{factory.__name__}(num_envs={n}, backend=envpool)"
+    if factory is make_minigrid_env:
+        # the C++ port: several times the steps, so several times as many
+        setups[envpool] = lambda: ours_env(
+            lambda: make_minigrid_env(
+                env_name, num_envs=n, seed=0, backend="envpool", num_threads=1
+            ),
+            4 * steps,
+        )
+    samples = interleave(setups, b.plan.rounds + 2)  # short measurements: 2 more
+    b.details["envs"][env_name] = {
+        k: {
+            "steps_per_cpu_s": [s.value for s in v],
+            "steps_per_s": [s.extra["wall_steps_per_s"] for s in v],
+            "load1": [s.load1 for s in v],
+        }
+        for k, v in samples.items()
+    }
+    wall_ratio = statistics.median(
+        a.extra["wall_steps_per_s"] / r.extra["wall_steps_per_s"]
+        for a, r in zip(samples[ours], samples["raw gymnasium"])
+    )
+    raw = med(samples["raw gymnasium"])
+    short = env_name.removeprefix("MiniGrid-")
+    b.targets.append(
+        Target(
+            4,
+            f"{ours} / raw, {short}",
+            paired_ratio(samples, ours, "raw gymnasium"),
+            0.9,
+            note=f"{med(samples[ours]):,.0f} / {raw:,.0f} steps/CPU-s; "
+            f"wall clock {wall_ratio:.2f}x",
+        )
+    )
+    if envpool in samples:
+        b.targets.append(
+            Target(
+                4,
+                f"{factory.__name__}({n}, envpool) / raw, {short}",
+                paired_ratio(samples, envpool, "raw gymnasium"),
+                ENVPOOL_PIPELINE_GOAL,
+                note=f"{med(samples[envpool]):,.0f} / {raw:,.0f} steps/CPU-s; "
+                "1 envpool thread",
+            )
+        )
+
+
+def item_memory(b: Bench) -> None:
+    print("[5] memory")
+    rss = b.rss
+    mem: dict = {"peak_rss_bytes": rss}
+    for env_name in ("HalfCheetah-v5", "Hopper-v5"):
+        per = ddpg_buffer_bytes_per_transition(env_name)
+        mem[f"ddpg_buffer_bytes_per_transition_{env_name}"] = per
+    per = max(v for k, v in mem.items() if k.startswith("ddpg_buffer"))
+    buffer_1m = per * 1_000_000
+    mem["ddpg_buffer_1M_bytes"] = buffer_1m
+    b.details["memory"] = mem
+    ddpg_run = rss["ddpg"] + buffer_1m
+    b.targets.append(
+        Target(
+            5,
+            "2 DDPG runs (1M buffer) / 24 GiB",
+            2 * ddpg_run / MEMORY_LIMIT,
+            1.0,
+            higher_is_better=False,
+            note=f"2 x ({rss['ddpg'] / GIB:.2f} GiB peak + "
+            f"{buffer_1m / GIB:.2f} GiB buffer, {per:.0f} B/transition)",
+        )
+    )
+    b.targets.append(
+        Target(
+            5,
+            "2 A2C runs / 24 GiB",
+            2 * rss["a2c"] / MEMORY_LIMIT,
+            1.0,
+            higher_is_better=False,
+            note=f"2 x {rss['a2c'] / GIB:.2f} GiB peak",
+        )
+    )
+
+
+def workers_ratio(b: Bench, key: str, name: str, measure: Callable, note: str) -> None:
+    """Item 6: ``measure(workers)`` with 2 workers over 1, interleaved."""
+    samples = interleave(
+        {f"{w} worker{'s' * (w > 1)}": lambda w=w: measure(w) for w in (1, 2)},
+        b.plan.rounds,
+    )
+    b.details["a2c_workers"][key] = by_setup(samples, "frames_per_s")
+    one, two = med(samples["1 worker"]), med(samples["2 workers"])
+    b.targets.append(
+        Target(
+            6,
+            name,
+            paired_ratio(samples, "2 workers", "1 worker"),
+            1.0,
+            note=f"{two:,.0f} / {one:,.0f}{note}",
+        )
+    )
+
+
+def item_workers(b: Bench) -> None:
+    print("[6] A2C recipe (defaults): 2 collector workers vs 1, frames/s")
+    plan, tmp = b.plan, b.tmp
+    b.details["a2c_workers"] = {"cores": os.cpu_count()}
+    for bonus in WORKER_BONUSES:
+        workers_ratio(
+            b,
+            bonus,
+            f"A2C {bonus}: 2 collector workers / 1 (frames/s)",
+            lambda w, bonus=bonus: a2c_recipe(
+                bonus, None, plan.a2c_frames, tmp, workers=w
+            ),
+            f"; {os.cpu_count()} cores",
+        )
+    for steps in COLLECTOR_STEPS:
+        workers_ratio(
+            b,
+            f"collector_16x{steps}",
+            f"collector alone, 16 envs x {steps}: 2 workers / 1",
+            lambda w, s=steps: collector_alone(w, s, plan.a2c_frames),
+            " frames/s",
+        )
+    torch.set_num_threads(1)
+    per_cpu_s = {
+        n: statistics.median(
+            collector_frames_per_cpu_s(n, plan.a2c_frames) for _ in range(plan.rounds)
+        )
+        for n in (16, 8, 4, 2)
+    }
+    b.details["a2c_workers"]["collector_frames_per_cpu_s"] = per_cpu_s
+    b.note(
+        "6  one process's collector, frames per CPU second by envs per "
+        "process: "
+        + ", ".join(
+            f"{n}: {v:,.0f} ({v / per_cpu_s[16]:.2f}x)" for n, v in per_cpu_s.items()
+        )
+    )
+
+
+def recipe_per_cpu_s(b: Bench, algo: str, extra: Sequence[str]) -> Sample:
+    """The MiniGrid recipe's ``time/fps_cpu`` (items 7 to 9): its defaults' bonus
+    unless ``extra`` sets one."""
+    bonus = None if any(e.startswith("+setting=") for e in extra) else "vae"
+    return a2c_recipe(
+        bonus,
+        None,
+        b.plan.recipe_frames,
+        b.tmp,
+        extra=list(extra),
+        algo=algo,
+        metric="time/fps_cpu",
+    )
+
+
+def item_learners(b: Bench) -> None:
+    # The recipe's frames per CPU second of its process (time/fps_cpu: its loop,
+    # all its threads) over this process's raw loop, steps per CPU second: both
+    # what one core does, which the machine's load moves less than wall clock.
+    print(
+        "[7] the learners (defaults) vs a raw gymnasium loop of one "
+        f"{RECIPE_TASK} env, per CPU second",
+        flush=True,
+    )
+    torch.set_num_threads(1)
+    setups = {"raw gymnasium": lambda: raw_env(RECIPE_TASK, b.plan.env_steps)}
+    for algo in RECIPE_GOALS:
+        for backend in RECIPE_BACKENDS:
+            setups[f"{algo}, {backend}"] = lambda a=algo, e=backend: recipe_per_cpu_s(
+                b, a, [f"env.backend={e}"]
+            )
+    samples = interleave(setups, b.plan.rounds)
+    b.details["recipes_vs_raw"] = by_setup(samples, "per_cpu_s")
+    raw = med(samples["raw gymnasium"])
+    for algo, goal in RECIPE_GOALS.items():
+        for backend in RECIPE_BACKENDS:
+            name = f"{algo}, {backend}"
+            b.targets.append(
+                Target(
+                    7,
+                    f"{algo.upper()} recipe ({backend}) / raw loop, frames per CPU-s",
+                    paired_ratio(samples, name, "raw gymnasium"),
+                    goal,
+                    note=f"{med(samples[name]):,.0f} / {raw:,.0f}; "
+                    f"6453210: {RECIPE_AT_6453210[algo]:.2f}x",
+                )
+            )
+
+
+def item_shapes(b: Bench) -> None:
+    print(
+        "[8] more envs a step: the learners (envpool) and the env pipeline "
+        "vs a raw gymnasium loop of one env, per CPU second",
+        flush=True,
+    )
+    torch.set_num_threads(1)
+    setups = {"raw gymnasium": lambda: raw_env(RECIPE_TASK, b.plan.env_steps)}
+    for algo, shapes in SHAPES.items():
+        for shape, overrides in shapes.items():
+            setups[f"{algo}, {shape}"] = lambda a=algo, o=overrides: recipe_per_cpu_s(
+                b, a, ["env.backend=envpool", *o]
+            )
+    samples = interleave(setups, b.plan.rounds)
+    b.details["shapes"] = {
+        k: {"per_cpu_s": [s.value for s in v], "load1": [s.load1 for s in v]}
+        for k, v in samples.items()
+    }
+    raw = med(samples["raw gymnasium"])
+    for algo, shapes in SHAPES.items():
+        reference, *others = shapes
+        for shape in shapes:
+            name = f"{algo}, {shape}"
+            note = f"{med(samples[name]):,.0f} / {raw:,.0f}"
+            if shape in others:
+                ratio = paired_ratio(samples, name, f"{algo}, {reference}")
+                note += f"; {ratio:.2f}x {reference}"
+            b.targets.append(
+                Target(
+                    8,
+                    f"{algo.upper()} {shape} (envpool) / raw loop",
+                    paired_ratio(samples, name, "raw gymnasium"),
+                    RECIPE_GOALS[algo],
+                    note=note,
+                )
+            )
+    shape_pipelines(b)
+
+
+def shape_pipelines(b: Bench) -> None:
+    """Item 8's env pipelines: 16 and 64 envpool envs over the raw loop."""
+    from torchrl_surprise.envs import make_minigrid_env
+
+    steps = b.plan.env_steps
+    b.details["shape_pipelines"] = {}
+    for env_name in MINIGRID_PIPELINE_ENVS:
+        setups = {
+            "raw gymnasium": lambda e=env_name: raw_env(e, steps),
+            **{
+                f"envpool, {n} envs": lambda e=env_name, n=n: ours_env(
+                    lambda: make_minigrid_env(
+                        e, num_envs=n, seed=0, backend="envpool", num_threads=1
+                    ),
+                    4 * steps,
+                )
+                for n in (A2C_NUM_ENVS, SHAPE_PIPELINE_ENVS)
+            },
+        }
+        samples = interleave(setups, b.plan.rounds + 2)
+        b.details["shape_pipelines"][env_name] = {
+            k: [s.value for s in v] for k, v in samples.items()
+        }
+        for n in (A2C_NUM_ENVS, SHAPE_PIPELINE_ENVS):
+            name = f"envpool, {n} envs"
+            b.targets.append(
+                Target(
+                    8,
+                    f"make_minigrid_env({n}, envpool) / raw, "
+                    f"{env_name.removeprefix('MiniGrid-')}",
+                    paired_ratio(samples, name, "raw gymnasium"),
+                    ENVPOOL_PIPELINE_GOAL,
+                    note=f"{med(samples[name]):,.0f} / "
+                    f"{med(samples['raw gymnasium']):,.0f} steps/CPU-s",
+                )
+            )
+
+
+def with_peak_memory(samples: dict[str, list[Sample]]) -> dict:
+    """Item 9's details: frames per CPU second, load, peak memory."""
+    return {
+        k: {
+            "per_cpu_s": [s.value for s in v],
+            "load1": [s.load1 for s in v],
+            "maxrss_bytes": max(s.extra["maxrss_bytes"] for s in v),
+        }
+        for k, v in samples.items()
+    }
+
+
+def item_suite(b: Bench) -> None:
+    print(
+        "[9] the suite's bonuses: PPO on DoorKey-16x16's batch (16 x 512, "
+        "envpool), each setting over the plain learner, per CPU second",
+        flush=True,
+    )
+    setups = {
+        setting: lambda s=setting: recipe_per_cpu_s(
+            b, "ppo", [f"+experiment={SUITE_EXPERIMENT}", f"+setting={s}"]
+        )
+        for setting in SUITE_SETTINGS
+    }
+    samples = interleave(setups, b.plan.rounds)
+    b.details["suite_settings"] = with_peak_memory(samples)
+    reference, *bonuses = SUITE_SETTINGS
+    for setting in bonuses:
+        b.targets.append(
+            Target(
+                9,
+                f"PPO 16 x 512, +setting={setting} / {reference}",
+                paired_ratio(samples, setting, reference),
+                SUITE_BONUS_GOAL,
+                note=f"{med(samples[setting]):,.0f} / "
+                f"{med(samples[reference]):,.0f} frames/CPU-s",
+            )
+        )
+    b.note(
+        "9: e3b_128 over e3b (the embedding 128 instead of 1024 wide): "
+        f"{paired_ratio(samples, 'e3b_128', 'e3b'):.2f}x"
+    )
+    b.note(
+        "9: peak resident memory of one recipe process: "
+        + ", ".join(
+            f"{k} {v['maxrss_bytes'] / GIB:.2f} GiB"
+            for k, v in b.details["suite_settings"].items()
+        )
+    )
+
+
+# item -> (its function, the items that need it run)
+ITEMS: dict[int, tuple[Callable[[Bench], None], tuple[int, ...]]] = {
+    1: (item_bonus_overhead, (1, 5)),  # item 5 reads its peak memory
+    2: (item_ddpg, (2, 5)),
+    3: (item_peer, (3,)),
+    4: (item_env_pipeline, (4,)),
+    5: (item_memory, (5,)),
+    6: (item_workers, (6,)),
+    7: (item_learners, (7,)),
+    8: (item_shapes, (8,)),
+    9: (item_suite, (9,)),
+}
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="a fast smoke run")
-    parser.add_argument(
-        "--items", type=int, nargs="+", default=[1, 2, 3, 4, 5, 6, 7, 8, 9]
-    )
+    parser.add_argument("--items", type=int, nargs="+", default=list(ITEMS))
     parser.add_argument("--rounds", type=int, help="interleaved rounds per ratio")
     parser.add_argument("--peer-threads", type=int, default=1)
     parser.add_argument("--out", help="output path prefix (.json and .txt added)")
     parser.add_argument("--peer-worker", nargs=4, help=argparse.SUPPRESS)
     parser.add_argument("--collector-worker", nargs=3, help=argparse.SUPPRESS)
-    args = parser.parse_args(argv)
+    return parser.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> dict:
+    args = parse_args(argv)
     if args.collector_worker:
         collector_worker(*(int(a) for a in args.collector_worker))
         return {}
@@ -761,501 +1253,24 @@ def main(argv: list[str] | None = None) -> dict:
         out = Path(tempfile.mkdtemp(prefix="bench_speed_")) / "bench_speed_quick"
     else:
         out = ROOT / "docs" / "results" / "bench_speed"
-
     sys.path.insert(0, str(ROOT))
-    from torchrl_surprise.envs import make_minigrid_env, make_mujoco_env
-
-    targets: list[Target] = []
-    details: dict = {"plan": asdict(plan), "load_start": load()}
-    rss: dict[str, int] = {}
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp_dir:
-        tmp = Path(tmp_dir)
-
-        if 1 in args.items or 5 in args.items:
-            print("[1] A2C recipe (defaults): bonus vs none, frames/s", flush=True)
-            names = ["none", *BONUSES]
-            setups = {
-                b: lambda b=b: a2c_recipe(b, None, plan.a2c_frames, tmp) for b in names
-            }
-            for label, extra in VAE_SCHEDULES.items():
-                setups[label] = lambda extra=extra: a2c_recipe(
-                    "vae", None, plan.a2c_frames, tmp, extra=extra
-                )
-            samples = interleave(setups, plan.rounds)
-            details["a2c_bonus"] = {
-                b: {"frames_per_s": [s.value for s in v], "load1": [s.load1 for s in v]}
-                for b, v in samples.items()
-            }
-            for b in [*BONUSES, *VAE_SCHEDULES]:
-                targets.append(
-                    Target(
-                        1,
-                        f"A2C {b} / none (frames/s)",
-                        paired_ratio(samples, b, "none"),
-                        0.90,
-                        note=f"{med(samples[b]):,.0f} / {med(samples['none']):,.0f}",
-                    )
-                )
-            rss["a2c"] = max(
-                s.extra["maxrss_bytes"] for v in samples.values() for s in v
-            )
-
-        if 2 in args.items or 5 in args.items:
-            print("[2] DDPG recipe (Hopper-v5) vs bare eager update, updates/s")
-            details["products_gflops"] = product_gflops()
-            samples = interleave(
-                {
-                    "bare eager": lambda: bare_ddpg(plan.bare_updates),
-                    "none": lambda: ddpg_recipe("none", plan.ddpg_frames, tmp),
-                    "vae": lambda: ddpg_recipe("vae", plan.ddpg_frames, tmp),
-                },
-                plan.rounds,
-            )
-            details["ddpg"] = {
-                k: {
-                    "updates_per_s": [s.value for s in v],
-                    "load1": [s.load1 for s in v],
-                }
-                for k, v in samples.items()
-            }
-            bare, none = med(samples["bare eager"]), med(samples["none"])
-            ratio = paired_ratio(samples, "none", "bare eager")
-            targets.append(
-                Target(
-                    2,
-                    "DDPG recipe none / bare eager (updates/s)",
-                    ratio,
-                    1.0,
-                    note=f"{none:,.0f} / {bare:,.0f}; stretch 1.5x",
-                )
-            )
-            targets.append(
-                Target(
-                    2,
-                    "DDPG recipe vae / none (updates/s)",
-                    paired_ratio(samples, "vae", "none"),
-                    0.85,
-                    note=f"{med(samples['vae']):,.0f} / {none:,.0f}",
-                )
-            )
-            rss["ddpg"] = max(
-                s.extra["maxrss_bytes"]
-                for k, v in samples.items()
-                if k != "bare eager"
-                for s in v
-            )
-
-        if 3 in args.items:
-            print("[3] A2C recipe (bonus=none) vs torch-ac 1.4.0, frames/s")
-            if importlib.util.find_spec("torch_ac") is None:
-                msg = (
-                    "skipped: torch-ac is not installed "
-                    '(pip install -e ".[bench]" installs torch-ac==1.4.0)'
-                )
-                print(f"    {msg}")
-                for env_name in PEER_ENVS:
-                    targets.append(
-                        Target(
-                            3,
-                            f"A2C ours / torch-ac, {env_name}",
-                            None,
-                            PEER_GOAL,
-                            note=msg,
-                        )
-                    )
-            else:
-                details["peer"] = {"threads": args.peer_threads}
-                for env_name in PEER_ENVS:
-                    samples = interleave(
-                        {
-                            "ours": lambda e=env_name: a2c_recipe(
-                                "none", e, plan.peer_frames, tmp
-                            ),
-                            "ours, envpool": lambda e=env_name: a2c_recipe(
-                                "none",
-                                e,
-                                plan.peer_frames,
-                                tmp,
-                                extra=["env.backend=envpool"],
-                            ),
-                            "torch-ac": lambda e=env_name: peer(
-                                e, plan.peer_frames, args.peer_threads
-                            ),
-                        },
-                        plan.rounds,
-                    )
-                    details["peer"][env_name] = {
-                        k: {
-                            "frames_per_s": [s.value for s in v],
-                            "load1": [s.load1 for s in v],
-                        }
-                        for k, v in samples.items()
-                    }
-                    for ours, label in (("ours", ""), ("ours, envpool", ", envpool")):
-                        targets.append(
-                            Target(
-                                3,
-                                f"A2C ours{label} / torch-ac, "
-                                f"{env_name.removeprefix('MiniGrid-')}",
-                                paired_ratio(samples, ours, "torch-ac"),
-                                PEER_GOAL,
-                                note=f"{med(samples[ours]):,.0f} / "
-                                f"{med(samples['torch-ac']):,.0f}",
-                            )
-                        )
-
-        if 4 in args.items:
-            # One process, one thread: its CPU time is what the steps cost, less
-            # sensitive than wall time to the other jobs on a shared machine.
-            print("[4] env pipeline vs a raw gymnasium loop, steps per CPU second")
-            details["envs"] = {}
-            pipelines = [
-                (e, A2C_NUM_ENVS, make_minigrid_env) for e in MINIGRID_PIPELINE_ENVS
-            ] + [(e, DDPG_NUM_ENVS, make_mujoco_env) for e in MUJOCO_PIPELINE_ENVS]
-            torch.set_num_threads(1)
-            for env_name, n, factory in pipelines:
-                ours = f"{factory.__name__}(num_envs={n})"
-                setups = {
-                    ours: lambda f=factory, e=env_name, n=n: ours_env(
-                        lambda: f(e, num_envs=n, seed=0), plan.env_steps
-                    ),
-                    "raw gymnasium": lambda e=env_name: raw_env(e, plan.env_steps),
-                }
-                envpool = f"{factory.__name__}(num_envs={n}, backend=envpool)"
-                if factory is make_minigrid_env:
-                    # the C++ port: several times the steps, so several times as many
-                    setups[envpool] = lambda e=env_name, n=n: ours_env(
-                        lambda: make_minigrid_env(
-                            e, num_envs=n, seed=0, backend="envpool", num_threads=1
-                        ),
-                        4 * plan.env_steps,
-                    )
-                samples = interleave(
-                    setups,
-                    plan.rounds + 2,  # short measurements: two more rounds
-                )
-                details["envs"][env_name] = {
-                    k: {
-                        "steps_per_cpu_s": [s.value for s in v],
-                        "steps_per_s": [s.extra["wall_steps_per_s"] for s in v],
-                        "load1": [s.load1 for s in v],
-                    }
-                    for k, v in samples.items()
-                }
-                wall_ratio = statistics.median(
-                    a.extra["wall_steps_per_s"] / b.extra["wall_steps_per_s"]
-                    for a, b in zip(samples[ours], samples["raw gymnasium"])
-                )
-                targets.append(
-                    Target(
-                        4,
-                        f"{ours} / raw, {env_name.removeprefix('MiniGrid-')}",
-                        paired_ratio(samples, ours, "raw gymnasium"),
-                        0.9,
-                        note=f"{med(samples[ours]):,.0f} / "
-                        f"{med(samples['raw gymnasium']):,.0f} steps/CPU-s; "
-                        f"wall clock {wall_ratio:.2f}x",
-                    )
-                )
-                if envpool in samples:
-                    targets.append(
-                        Target(
-                            4,
-                            f"{factory.__name__}({n}, envpool) / raw, "
-                            f"{env_name.removeprefix('MiniGrid-')}",
-                            paired_ratio(samples, envpool, "raw gymnasium"),
-                            ENVPOOL_PIPELINE_GOAL,
-                            note=f"{med(samples[envpool]):,.0f} / "
-                            f"{med(samples['raw gymnasium']):,.0f} steps/CPU-s; "
-                            "1 envpool thread",
-                        )
-                    )
-
-        if 5 in args.items:
-            print("[5] memory")
-            mem: dict = {"peak_rss_bytes": rss}
-            for env_name in ("HalfCheetah-v5", "Hopper-v5"):
-                per = ddpg_buffer_bytes_per_transition(env_name)
-                mem[f"ddpg_buffer_bytes_per_transition_{env_name}"] = per
-            per = max(v for k, v in mem.items() if k.startswith("ddpg_buffer"))
-            buffer_1m = per * 1_000_000
-            mem["ddpg_buffer_1M_bytes"] = buffer_1m
-            details["memory"] = mem
-            ddpg_run = rss["ddpg"] + buffer_1m
-            targets.append(
-                Target(
-                    5,
-                    "2 DDPG runs (1M buffer) / 24 GiB",
-                    2 * ddpg_run / MEMORY_LIMIT,
-                    1.0,
-                    higher_is_better=False,
-                    note=f"2 x ({rss['ddpg'] / GIB:.2f} GiB peak + "
-                    f"{buffer_1m / GIB:.2f} GiB buffer, {per:.0f} B/transition)",
-                )
-            )
-            targets.append(
-                Target(
-                    5,
-                    "2 A2C runs / 24 GiB",
-                    2 * rss["a2c"] / MEMORY_LIMIT,
-                    1.0,
-                    higher_is_better=False,
-                    note=f"2 x {rss['a2c'] / GIB:.2f} GiB peak",
-                )
-            )
-
-        if 6 in args.items:
-            print("[6] A2C recipe (defaults): 2 collector workers vs 1, frames/s")
-            details["a2c_workers"] = {"cores": os.cpu_count()}
-            for bonus in WORKER_BONUSES:
-                samples = interleave(
-                    {
-                        f"{w} worker{'s' * (w > 1)}": lambda b=bonus, w=w: a2c_recipe(
-                            b, None, plan.a2c_frames, tmp, workers=w
-                        )
-                        for w in (1, 2)
-                    },
-                    plan.rounds,
-                )
-                details["a2c_workers"][bonus] = {
-                    k: {
-                        "frames_per_s": [s.value for s in v],
-                        "load1": [s.load1 for s in v],
-                    }
-                    for k, v in samples.items()
-                }
-                one, two = med(samples["1 worker"]), med(samples["2 workers"])
-                targets.append(
-                    Target(
-                        6,
-                        f"A2C {bonus}: 2 collector workers / 1 (frames/s)",
-                        paired_ratio(samples, "2 workers", "1 worker"),
-                        1.0,
-                        note=f"{two:,.0f} / {one:,.0f}; {os.cpu_count()} cores",
-                    )
-                )
-            for steps in COLLECTOR_STEPS:
-                samples = interleave(
-                    {
-                        f"{w} worker{'s' * (w > 1)}": lambda s=steps, w=w: (
-                            collector_alone(w, s, plan.a2c_frames)
-                        )
-                        for w in (1, 2)
-                    },
-                    plan.rounds,
-                )
-                details["a2c_workers"][f"collector_16x{steps}"] = {
-                    k: {
-                        "frames_per_s": [s.value for s in v],
-                        "load1": [s.load1 for s in v],
-                    }
-                    for k, v in samples.items()
-                }
-                one, two = med(samples["1 worker"]), med(samples["2 workers"])
-                targets.append(
-                    Target(
-                        6,
-                        f"collector alone, 16 envs x {steps}: 2 workers / 1",
-                        paired_ratio(samples, "2 workers", "1 worker"),
-                        1.0,
-                        note=f"{two:,.0f} / {one:,.0f} frames/s",
-                    )
-                )
-            torch.set_num_threads(1)
-            per_cpu_s = {
-                n: statistics.median(
-                    collector_frames_per_cpu_s(n, plan.a2c_frames)
-                    for _ in range(plan.rounds)
-                )
-                for n in (16, 8, 4, 2)
-            }
-            details["a2c_workers"]["collector_frames_per_cpu_s"] = per_cpu_s
-            details.setdefault("notes", []).append(
-                "6  one process's collector, frames per CPU second by envs per "
-                "process: "
-                + ", ".join(
-                    f"{n}: {v:,.0f} ({v / per_cpu_s[16]:.2f}x)"
-                    for n, v in per_cpu_s.items()
-                )
-            )
-
-        if 7 in args.items:
-            # The recipe's frames per CPU second of its process (time/fps_cpu: its
-            # loop, all its threads) over this process's raw loop, steps per CPU
-            # second: both what one core does, which the machine's load moves less
-            # than wall clock.
-            print(
-                "[7] the learners (defaults) vs a raw gymnasium loop of one "
-                f"{RECIPE_TASK} env, per CPU second",
-                flush=True,
-            )
-            torch.set_num_threads(1)
-            setups = {"raw gymnasium": lambda: raw_env(RECIPE_TASK, plan.env_steps)}
-            for algo in RECIPE_GOALS:
-                for backend in RECIPE_BACKENDS:
-                    setups[f"{algo}, {backend}"] = lambda a=algo, b=backend: a2c_recipe(
-                        "vae",
-                        None,
-                        plan.recipe_frames,
-                        tmp,
-                        extra=[f"env.backend={b}"],
-                        algo=a,
-                        metric="time/fps_cpu",
-                    )
-            samples = interleave(setups, plan.rounds)
-            details["recipes_vs_raw"] = {
-                k: {
-                    "per_cpu_s": [s.value for s in v],
-                    "load1": [s.load1 for s in v],
-                }
-                for k, v in samples.items()
-            }
-            raw = med(samples["raw gymnasium"])
-            for algo, goal in RECIPE_GOALS.items():
-                for backend in RECIPE_BACKENDS:
-                    name = f"{algo}, {backend}"
-                    targets.append(
-                        Target(
-                            7,
-                            f"{algo.upper()} recipe ({backend}) / raw loop, "
-                            "frames per CPU-s",
-                            paired_ratio(samples, name, "raw gymnasium"),
-                            goal,
-                            note=f"{med(samples[name]):,.0f} / {raw:,.0f}; "
-                            f"6453210: {RECIPE_AT_6453210[algo]:.2f}x",
-                        )
-                    )
-
-        if 8 in args.items:
-            print(
-                "[8] more envs a step: the learners (envpool) and the env pipeline "
-                "vs a raw gymnasium loop of one env, per CPU second",
-                flush=True,
-            )
-            torch.set_num_threads(1)
-            setups = {"raw gymnasium": lambda: raw_env(RECIPE_TASK, plan.env_steps)}
-            for algo, shapes in SHAPES.items():
-                for shape, overrides in shapes.items():
-                    setups[f"{algo}, {shape}"] = lambda a=algo, o=overrides: a2c_recipe(
-                        "vae",
-                        None,
-                        plan.recipe_frames,
-                        tmp,
-                        extra=["env.backend=envpool", *o],
-                        algo=a,
-                        metric="time/fps_cpu",
-                    )
-            samples = interleave(setups, plan.rounds)
-            details["shapes"] = {
-                k: {"per_cpu_s": [s.value for s in v], "load1": [s.load1 for s in v]}
-                for k, v in samples.items()
-            }
-            raw = med(samples["raw gymnasium"])
-            for algo, shapes in SHAPES.items():
-                reference, *others = shapes
-                for shape in shapes:
-                    name = f"{algo}, {shape}"
-                    note = f"{med(samples[name]):,.0f} / {raw:,.0f}"
-                    if shape in others:
-                        ratio = paired_ratio(samples, name, f"{algo}, {reference}")
-                        note += f"; {ratio:.2f}x {reference}"
-                    targets.append(
-                        Target(
-                            8,
-                            f"{algo.upper()} {shape} (envpool) / raw loop",
-                            paired_ratio(samples, name, "raw gymnasium"),
-                            RECIPE_GOALS[algo],
-                            note=note,
-                        )
-                    )
-            details["shape_pipelines"] = {}
-            for env_name in MINIGRID_PIPELINE_ENVS:
-                setups = {
-                    "raw gymnasium": lambda e=env_name: raw_env(e, plan.env_steps),
-                    **{
-                        f"envpool, {n} envs": lambda e=env_name, n=n: ours_env(
-                            lambda: make_minigrid_env(
-                                e, num_envs=n, seed=0, backend="envpool", num_threads=1
-                            ),
-                            4 * plan.env_steps,
-                        )
-                        for n in (A2C_NUM_ENVS, SHAPE_PIPELINE_ENVS)
-                    },
-                }
-                samples = interleave(setups, plan.rounds + 2)
-                details["shape_pipelines"][env_name] = {
-                    k: [s.value for s in v] for k, v in samples.items()
-                }
-                for n in (A2C_NUM_ENVS, SHAPE_PIPELINE_ENVS):
-                    name = f"envpool, {n} envs"
-                    targets.append(
-                        Target(
-                            8,
-                            f"make_minigrid_env({n}, envpool) / raw, "
-                            f"{env_name.removeprefix('MiniGrid-')}",
-                            paired_ratio(samples, name, "raw gymnasium"),
-                            ENVPOOL_PIPELINE_GOAL,
-                            note=f"{med(samples[name]):,.0f} / "
-                            f"{med(samples['raw gymnasium']):,.0f} steps/CPU-s",
-                        )
-                    )
-
-        if 9 in args.items:
-            print(
-                "[9] the suite's bonuses: PPO on DoorKey-16x16's batch (16 x 512, "
-                "envpool), each setting over the plain learner, per CPU second",
-                flush=True,
-            )
-            setups = {
-                setting: lambda s=setting: a2c_recipe(
-                    None,
-                    None,
-                    plan.recipe_frames,
-                    tmp,
-                    extra=[f"+experiment={SUITE_EXPERIMENT}", f"+setting={s}"],
-                    algo="ppo",
-                    metric="time/fps_cpu",
-                )
-                for setting in SUITE_SETTINGS
-            }
-            samples = interleave(setups, plan.rounds)
-            details["suite_settings"] = {
-                k: {
-                    "per_cpu_s": [s.value for s in v],
-                    "load1": [s.load1 for s in v],
-                    "maxrss_bytes": max(s.extra["maxrss_bytes"] for s in v),
-                }
-                for k, v in samples.items()
-            }
-            reference, *bonuses = SUITE_SETTINGS
-            for setting in bonuses:
-                targets.append(
-                    Target(
-                        9,
-                        f"PPO 16 x 512, +setting={setting} / {reference}",
-                        paired_ratio(samples, setting, reference),
-                        SUITE_BONUS_GOAL,
-                        note=f"{med(samples[setting]):,.0f} / "
-                        f"{med(samples[reference]):,.0f} frames/CPU-s",
-                    )
-                )
-            details.setdefault("notes", []).append(
-                "9: e3b_128 over e3b (the embedding 128 instead of 1024 wide): "
-                f"{paired_ratio(samples, 'e3b_128', 'e3b'):.2f}x"
-            )
-            details["notes"].append(
-                "9: peak resident memory of one recipe process: "
-                + ", ".join(
-                    f"{k} {v['maxrss_bytes'] / GIB:.2f} GiB"
-                    for k, v in details["suite_settings"].items()
-                )
-            )
-
+        bench = Bench(args, plan, Path(tmp_dir))
+        bench.details.update({"plan": asdict(plan), "load_start": load()})
+        for run, needed_by in ITEMS.values():
+            if any(i in args.items for i in needed_by):
+                run(bench)
+    details = bench.details
     details["load_end"] = load()
     details["minutes"] = round((time.perf_counter() - started) / 60, 1)
-    text = render(targets, details, plan)
-    if args.quick:
+    return write_result(bench, out)
+
+
+def write_result(b: Bench, out: Path) -> dict:
+    """Prints the table and writes ``<out>.txt`` and ``<out>.json``."""
+    text = render(b.targets, b.details, b.plan)
+    if b.args.quick:
         text += (
             "\n--quick: a smoke run; its budgets are too short for the ratios to "
             "mean much (the recipes' first iterations dominate)"
@@ -1263,16 +1278,16 @@ def main(argv: list[str] | None = None) -> dict:
     print(text)
     result = {
         "machine": machine(),
-        "quick": args.quick,
+        "quick": b.args.quick,
         "targets": [
             {
                 **asdict(t),
                 "met": t.met,
                 "goal_kind": ">=" if t.higher_is_better else "<=",
             }
-            for t in targets
+            for t in b.targets
         ],
-        "details": details,
+        "details": b.details,
     }
     out.parent.mkdir(parents=True, exist_ok=True)
     out.with_suffix(".json").write_text(json.dumps(result, indent=2) + "\n")
