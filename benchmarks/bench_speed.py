@@ -59,14 +59,22 @@ average is recorded with each measurement.
    second of its process (``time/fps_cpu``) over the plain learner
    (``+setting=none``); goal 0.5 (a bonus at most doubles what a frame costs).
    Under the table, ``e3b_128`` over ``e3b``.
+10. The PPO recipe against a hand-written PPO: ``algo=ppo`` (envpool, 64 envs x
+    32 steps) with ``+setting=none`` and ``+setting=vae_noveld``, in frames per
+    CPU second of its process (``time/fps_cpu``), over ``benchmarks/ppo_baseline.py``
+    with the same settings and bonus (plain tensors on envpool, CleanRL's
+    ``ppo_atari_envpool.py`` in shape; its own frames per CPU second of its
+    training loop, in a subprocess); goal 1.0 (the recipe no slower than by hand).
 
-Recipes and the peer run as subprocesses (their start-up is not timed: the recipes
-time their own training loop, the peer is timed the same way). Usage::
+Recipes, the peer and the hand-written PPO run as subprocesses (their start-up is
+not timed: the recipes time their own training loop, the peer and the hand-written
+PPO are timed the same way). Usage::
 
-    python benchmarks/bench_speed.py            # ~35 min on 2 busy cores
+    python benchmarks/bench_speed.py            # ~40 min on 2 busy cores
     python benchmarks/bench_speed.py --quick    # smoke run, ~4 min
     python benchmarks/bench_speed.py --items 2 4 --rounds 5
     python benchmarks/bench_speed.py --items 6 --out docs/results/bench_workers
+    python benchmarks/bench_speed.py --items 10 --rounds 3 --out /tmp/bench_ppo
 
 Writes ``<out>.json`` and ``<out>.txt`` (default ``docs/results/bench_speed``;
 with ``--quick`` a temporary directory unless ``--out`` is given).
@@ -150,6 +158,11 @@ SHAPE_PIPELINE_ENVS = 64
 SUITE_EXPERIMENT = "ppo/suite_doorkey16x16_16x512"
 SUITE_SETTINGS = ("none", "e3b", "e3b_128", "noveld", "vae_noveld")
 SUITE_BONUS_GOAL = 0.5
+# item 10: the PPO recipe (defaults, envpool) over a hand-written PPO of the same
+# settings, with each bonus (``+setting=...``); goal: no slower than by hand
+PPO_BASELINE = ROOT / "benchmarks" / "ppo_baseline.py"
+BASELINE_BONUSES = ("none", "vae_noveld")
+BASELINE_GOAL = 1.0
 
 __all__ = ["main"]
 
@@ -733,6 +746,19 @@ def machine() -> dict:
     }
 
 
+# ---- item 10: the PPO recipe against a hand-written PPO -------------------------
+def ppo_baseline(bonus: str, frames: int) -> Sample:
+    """``benchmarks/ppo_baseline.py`` in a subprocess: its frames per CPU second of
+    its training loop (start-up not timed, as the recipe's ``time/fps_cpu``)."""
+    load1 = os.getloadavg()[0]
+    child = run_child(
+        [sys.executable, str(PPO_BASELINE), "--frames", str(frames), "--bonus", bonus]
+    )
+    result = json.loads(child.stdout.strip().splitlines()[-1])
+    extra = {"maxrss_bytes": child.maxrss_bytes, "frames_per_s": result["fps"]}
+    return Sample(result["fps_cpu"], load1, extra)
+
+
 # ---- the items --------------------------------------------------------------------
 @dataclass
 class Bench:
@@ -1033,7 +1059,7 @@ def item_workers(b: Bench) -> None:
 
 
 def recipe_per_cpu_s(b: Bench, algo: str, extra: Sequence[str]) -> Sample:
-    """The MiniGrid recipe's ``time/fps_cpu`` (items 7 to 9): its defaults' bonus
+    """The MiniGrid recipe's ``time/fps_cpu`` (items 7 to 10): its defaults' bonus
     unless ``extra`` sets one."""
     bonus = None if any(e.startswith("+setting=") for e in extra) else "vae"
     return a2c_recipe(
@@ -1159,7 +1185,7 @@ def shape_pipelines(b: Bench) -> None:
 
 
 def with_peak_memory(samples: dict[str, list[Sample]]) -> dict:
-    """Item 9's details: frames per CPU second, load, peak memory."""
+    """Items 9 and 10's details: frames per CPU second, load, peak memory."""
     return {
         k: {
             "per_cpu_s": [s.value for s in v],
@@ -1209,6 +1235,37 @@ def item_suite(b: Bench) -> None:
     )
 
 
+def item_ppo_baseline(b: Bench) -> None:
+    # Both sides time their training loop in CPU seconds of their own process
+    # (start-up excluded), on the same envpool env, batch and settings.
+    print(
+        "[10] the PPO recipe (defaults, envpool) vs a hand-written PPO "
+        "(benchmarks/ppo_baseline.py), per CPU second",
+        flush=True,
+    )
+    frames = b.plan.recipe_frames
+    setups = {}
+    for bonus in BASELINE_BONUSES:
+        setups[f"recipe, {bonus}"] = lambda s=bonus: recipe_per_cpu_s(
+            b, "ppo", [f"+setting={s}"]
+        )
+        setups[f"hand-written, {bonus}"] = lambda s=bonus: ppo_baseline(s, frames)
+    samples = interleave(setups, b.plan.rounds)
+    b.details["ppo_baseline"] = with_peak_memory(samples)
+    for bonus in BASELINE_BONUSES:
+        recipe, hand = f"recipe, {bonus}", f"hand-written, {bonus}"
+        b.targets.append(
+            Target(
+                10,
+                f"PPO recipe / hand-written PPO, {bonus}",
+                paired_ratio(samples, recipe, hand),
+                BASELINE_GOAL,
+                note=f"{med(samples[recipe]):,.0f} / {med(samples[hand]):,.0f} "
+                "frames/CPU-s",
+            )
+        )
+
+
 # item -> (its function, the items that need it run)
 ITEMS: dict[int, tuple[Callable[[Bench], None], tuple[int, ...]]] = {
     1: (item_bonus_overhead, (1, 5)),  # item 5 reads its peak memory
@@ -1220,6 +1277,7 @@ ITEMS: dict[int, tuple[Callable[[Bench], None], tuple[int, ...]]] = {
     7: (item_learners, (7,)),
     8: (item_shapes, (8,)),
     9: (item_suite, (9,)),
+    10: (item_ppo_baseline, (10,)),
 }
 
 
