@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import tarfile
+import zipfile
 from pathlib import Path
 
 import pytest
@@ -90,3 +92,39 @@ def test_the_wheel_installs_with_the_core_lower_ends_only(tmp_path):
     assert f"torchrl_surprise-{version()}-" in wheel.name
     assert f"VERSION: {version()}" in out
     assert 'pip install "torchrl_surprise[minigrid]"' in out
+
+
+def test_the_sdist_is_the_library_with_its_license_and_no_license_warning(tmp_path):
+    # setuptools' own PEP 517 backend (the one pyproject.toml names), no isolation:
+    # offline, and its warnings reach this process
+    log = []
+    for kind in ("sdist", "wheel"):
+        build = f"import sys, setuptools.build_meta as b; b.build_{kind}(sys.argv[1])"
+        proc = run(sys.executable, "-c", build, tmp_path, cwd=ROOT)
+        log += (proc.stdout + proc.stderr).lower().splitlines()
+    warned = [line for line in log if "warn" in line and "licen" in line]
+    assert not warned, warned
+    (sdist,) = tmp_path.glob("torchrl_surprise-*.tar.gz")
+    with tarfile.open(sdist) as tar:
+        names = [n.split("/", 1)[1] for n in tar.getnames() if "/" in n]
+        info = tar.extractfile(f"torchrl_surprise-{version()}/PKG-INFO").read()
+    # the tests need the recipes and docs of a checkout: none is half shipped
+    assert {n.split("/")[0] for n in names} == {
+        "LICENSE",
+        "MANIFEST.in",
+        "PKG-INFO",
+        "README.md",
+        "pyproject.toml",
+        "setup.cfg",
+        "torchrl_surprise",
+        "torchrl_surprise.egg-info",
+    }
+    (wheel,) = tmp_path.glob("torchrl_surprise-*.whl")
+    with zipfile.ZipFile(wheel) as whl:
+        metadata = whl.read(f"torchrl_surprise-{version()}.dist-info/METADATA")
+        licenses = [n for n in whl.namelist() if "/licenses/" in n]
+    for meta in (info.decode(), metadata.decode()):
+        assert "License-Expression: MIT" in meta.splitlines()
+        assert "License-File: LICENSE" in meta.splitlines()
+        assert "Classifier: License ::" not in meta
+    assert licenses == [f"torchrl_surprise-{version()}.dist-info/licenses/LICENSE"]
