@@ -69,8 +69,8 @@ def test_a_gif_holds_every_frame_of_a_real_minigrid_episode(tmp_path):
     (steps,) = video.steps
     assert steps == minigrid.step_count
     assert steps == minigrid.max_steps or video.returns[0] > 0, "the episode ended"
-    # the reset's frame, then one per step: minigrid's render of the whole grid
-    assert video.frames.shape == (steps + 1, 25 * 16, 25 * 16, 3)
+    # the reset's frame, then one per step: minigrid's render, cropped to the maze
+    assert video.frames.shape[0] == steps + 1 and video.frames.shape[-1] == 3
     assert video.frames.dtype == np.uint8
 
     path = write_gif(video.frames, tmp_path / "videos" / "episode.gif", fps=10)
@@ -84,6 +84,56 @@ def test_a_gif_holds_every_frame_of_a_real_minigrid_episode(tmp_path):
     # the agent moves: the episode is more than one picture
     assert len(stored) > 1 and not (stored[0] == stored[-1]).all()
     env.close()
+
+
+WALL = np.array([100, 100, 100], np.uint8)  # minigrid's grey, a wall's colour
+
+
+def test_a_multiroom_video_is_its_maze_not_the_whole_grid():
+    # MultiRoom-N3S4 lays 3 rooms of at most 4x4 out in a 25x25 grid: the rest is
+    # empty floor, which the GIF leaves out
+    def record(crop):
+        env = make_minigrid_video_env(TASK, SEED, tile_size=8)
+        torch.manual_seed(0)
+        video = record_episodes(env, env.rand_action, max_steps=3, crop_to_maze=crop)
+        env.close()
+        return video.frames
+
+    cropped, whole = record(True), record(False)
+    assert whole.shape == (4, 25 * 8, 25 * 8, 3)
+    height, width = cropped.shape[1:3]
+    assert height % 8 == width % 8 == 0 and height * width < whole[0].size / 3 / 4
+    # the crop is a part of the whole frame that holds every wall of the maze
+    offsets = [
+        (r, c)
+        for r in range(0, 25 * 8 - height + 1, 8)
+        for c in range(0, 25 * 8 - width + 1, 8)
+        if (whole[:, r : r + height, c : c + width] == cropped).all()
+    ]
+    assert len(offsets) == 1
+    walls = (whole[0] == WALL).all(-1).sum()
+    assert walls > 0 and (cropped[0] == WALL).all(-1).sum() == walls
+
+
+def test_a_gif_write_that_fails_names_the_file_and_leaves_nothing(
+    tmp_path, monkeypatch
+):
+    import errno
+
+    import common.files
+    from common.errors import UserMistake
+
+    frames = np.zeros((2, 8, 8, 3), np.uint8)
+    path = tmp_path / "videos" / "episode_64.gif"
+
+    def full_disk(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(common.files.os, "fsync", full_disk)
+    with pytest.raises(UserMistake, match="no space left on device") as err:
+        write_gif(frames, path)
+    assert str(path) in str(err.value) and "No partial file" in str(err.value)
+    assert list(path.parent.iterdir()) == []
 
 
 def test_the_video_env_gives_the_policy_the_training_envs_observations():
@@ -131,7 +181,9 @@ def test_envpool_cannot_render_and_the_recipe_records_on_minigrid(tmp_path):
     )
     assert path == tmp_path / "videos" / "episode_1234.gif"
     stored, durations = read_gif(path)
-    assert stored[0].shape == (400, 400, 3) and sum(durations) >= 2 * 100
+    # the maze of a layout of minigrid's, not its whole 25x25 grid of 16 pixels
+    assert stored[0].shape[0] < 400 and stored[0].shape[1] < 400
+    assert sum(durations) >= 2 * 100
 
 
 def test_the_logger_gets_the_frames_when_it_takes_videos(tmp_path):

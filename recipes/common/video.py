@@ -10,7 +10,7 @@ the reset and after every step the gymnasium env's ``render()`` gives a frame.
 
 * :func:`make_minigrid_video_env`, :func:`make_mujoco_video_env`: that env.
 * :func:`record_episodes`: the frames of ``episodes`` episodes of a policy.
-* :func:`write_gif`: the frames as a GIF (Pillow).
+* :func:`write_gif`: the frames as a GIF (imageio), written whole or not at all.
 * :func:`log_video`: the frames to a TorchRL logger that takes videos.
 * :func:`record_minigrid_video`: all of it for the MiniGrid recipe's run
   (``eval.video=true``): ``<run dir>/videos/episode_<frames>.gif``.
@@ -20,10 +20,9 @@ tensordict, so the env would have to write every frame into its step outputs
 (``PixelRenderTransform``), and it writes only through a logger, whose formats
 are TensorBoard's, W&B's, MLflow's, or the CSV logger's ``.pt``, memmap and mp4
 (the last through torchcodec): no GIF, which would then be written from the
-recorder's frame buffer anyway. Here the frames go to a list, the GIF is written by Pillow (a
-dependency of matplotlib, which the recipes use already; imageio writes GIFs
-through Pillow too), and the logger gets the same frames in the layout
-``log_video`` takes.
+recorder's frame buffer anyway. Here the frames go to a list, the GIF is
+written by imageio (through Pillow), and the logger gets the same frames in the
+layout ``log_video`` takes.
 
 A GIF stores a frame that repeats the previous one once, with the two durations
 summed (Pillow does; MiniGrid's ``pickup`` with nothing in front of the agent
@@ -44,6 +43,7 @@ import numpy as np
 import torch
 from torchrl.envs import EnvBase, TransformedEnv
 
+from .files import write_atomically, write_failure
 from .minigrid import make_env
 
 __all__ = [
@@ -123,6 +123,43 @@ def _render(gym_env) -> np.ndarray:
     return np.ascontiguousarray(frame, dtype=np.uint8)
 
 
+def _maze_box(gym_env, frame: np.ndarray) -> tuple[int, int, int, int] | None:
+    """The pixels ``(top, bottom, left, right)`` of a MiniGrid frame that hold
+    its maze: the cells with an object (walls, doors, ...) and the agent's; the
+    rest of the grid is empty floor (MultiRoom lays 3 small rooms out in a
+    25x25 grid). ``None`` for an env without a MiniGrid grid (MuJoCo)."""
+    base = gym_env.unwrapped
+    grid = getattr(base, "grid", None)
+    if grid is None or not hasattr(base, "agent_pos"):
+        return None
+    cells = [
+        (i, j)
+        for j in range(grid.height)
+        for i in range(grid.width)
+        if grid.get(i, j) is not None
+    ]
+    cells.append(tuple(int(v) for v in base.agent_pos))
+    tile = frame.shape[0] // grid.height
+    columns, rows = zip(*cells)
+    return (
+        min(rows) * tile,
+        (max(rows) + 1) * tile,
+        min(columns) * tile,
+        (max(columns) + 1) * tile,
+    )
+
+
+def _union(box, other):
+    if box is None or other is None:
+        return other if box is None else box
+    return (
+        min(box[0], other[0]),
+        max(box[1], other[1]),
+        min(box[2], other[2]),
+        max(box[3], other[3]),
+    )
+
+
 def record_episodes(
     env: EnvBase,
     policy,
@@ -130,6 +167,7 @@ def record_episodes(
     *,
     deterministic: bool = False,
     max_steps: int = 10_000,
+    crop_to_maze: bool = True,
 ) -> VideoFrames:
     """Runs ``policy`` for ``episodes`` episodes of ``env``, rendering each step.
 
@@ -149,6 +187,9 @@ def record_episodes(
         deterministic (bool): ``ExplorationType.DETERMINISTIC`` (else
             ``RANDOM``: the policy is sampled).
         max_steps (int): the most steps of one episode.
+        crop_to_maze (bool): on MiniGrid, crop the frames to the part of the
+            grid that holds the maze of any of the episodes (MultiRoom's 3 rooms
+            fill a few cells of its 25x25 grid); other envs' are not cropped.
 
     Returns:
         The frames, the steps and the return of each episode.
@@ -180,7 +221,7 @@ def record_episodes(
     source = _render_source(env)
     reward_key, done_key = env.reward_key, env.done_keys[0]
     mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
-    frames, steps, returns = [], [], []
+    frames, steps, returns, box = [], [], [], None
     with (
         torch.random.fork_rng(devices=[]),
         torch.no_grad(),
@@ -189,6 +230,8 @@ def record_episodes(
         for _ in range(episodes):
             td = env.reset()
             frames.append(_render(source))
+            if crop_to_maze:
+                box = _union(box, _maze_box(source, frames[-1]))
             total, done, count = 0.0, False, 0
             while not done and count < max_steps:
                 td = env.step(policy(td))
@@ -199,12 +242,20 @@ def record_episodes(
                 count += 1
             steps.append(count)
             returns.append(total)
-    return VideoFrames(np.stack(frames), steps, returns)
+    frames = np.stack(frames)
+    if box is not None:
+        top, bottom, left, right = box
+        frames = np.ascontiguousarray(frames[:, top:bottom, left:right])
+    return VideoFrames(frames, steps, returns)
 
 
 def write_gif(frames, path: str | os.PathLike, fps: int = DEFAULT_FPS) -> Path:
     """Writes ``frames`` as a GIF that loops, ``1 / fps`` seconds a frame.
 
+    Encoded by imageio (its Pillow plugin) in memory, then written beside
+    ``path`` and renamed over it: a write that fails (a full disk, no
+    permission) leaves no partial GIF and raises
+    :class:`~common.files.RunWriteError`, which names the file and the cause.
     GIF stores durations in hundredths of a second: ``fps`` is rounded to the
     nearest duration that GIF can store (10 fps: 0.1 s). A frame equal to the
     one before it is stored once with both durations (Pillow's GIF writer).
@@ -219,6 +270,7 @@ def write_gif(frames, path: str | os.PathLike, fps: int = DEFAULT_FPS) -> Path:
 
     Raises:
         ValueError: frames that are not ``uint8`` ``[T, H, W, 3]``, or ``fps <= 0``.
+        RunWriteError: the file could not be written.
 
     Examples:
         >>> import tempfile
@@ -229,7 +281,7 @@ def write_gif(frames, path: str | os.PathLike, fps: int = DEFAULT_FPS) -> Path:
         >>> Image.open(path).n_frames  # the third repeats none: all stored
         3
     """
-    from PIL import Image
+    import imageio.v3 as iio
 
     frames = np.asarray(frames)
     if frames.dtype != np.uint8 or frames.ndim != 4 or frames.shape[-1] != 3:
@@ -241,14 +293,15 @@ def write_gif(frames, path: str | os.PathLike, fps: int = DEFAULT_FPS) -> Path:
         raise ValueError("frames is empty: a GIF needs at least one frame.")
     if not fps > 0:
         raise ValueError(f"fps must be > 0, got {fps}.")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    images = [Image.fromarray(frame) for frame in frames]
     # GIF's unit of time is 10 ms: a duration Pillow would round on writing.
     duration = max(10, round(100 / fps) * 10)
-    images[0].save(
-        path, save_all=True, append_images=images[1:], duration=duration, loop=0
-    )
+    data = iio.imwrite("<bytes>", frames, extension=".gif", duration=duration, loop=0)
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise write_failure(err, path) from err
+    write_atomically(path, data)
     return path
 
 
@@ -337,7 +390,8 @@ def make_minigrid_video_env(
         env_name (str): a MiniGrid id.
         seed (int): the env's seed (the evaluation's, to see its first episode).
         like: an env whose transforms are copied; ``None``: no transforms.
-        tile_size (int): pixels per grid cell (MultiRoom's 25x25 grid: 400x400).
+        tile_size (int): pixels per grid cell (MultiRoom's 25x25 grid: 400x400,
+            which :func:`record_episodes` crops to the maze).
         env_kwargs: more keyword arguments for ``gymnasium.make``.
 
     Returns:
