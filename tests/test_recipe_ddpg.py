@@ -3,6 +3,7 @@ pieces in-process: the replay-buffer bonus equals the env-path bonus."""
 
 from __future__ import annotations
 
+import os
 import shlex
 import signal
 import subprocess
@@ -21,6 +22,7 @@ from _recipe_run import (
     wait_for_checkpoint,
 )
 from hydra import compose, initialize_config_dir
+from PIL import Image
 
 from common.checkpoint import load_checkpoint
 from common.config import validate_ddpg
@@ -378,3 +380,40 @@ def test_unknown_env_id_fails_clearly():
     validate_ddpg(cfg)  # any id is a string: the env factory names it
     with pytest.raises(ValueError, match="HalfCheetah-v99"):
         utils.make_env(cfg, 1, seed=0)
+
+
+def _run_with_env(run_dir: Path, env_vars: dict, *overrides: str):
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "MUJOCO_GL")}
+    env.update(env_vars)
+    return subprocess.run(
+        recipe_cmd(run_dir, *overrides),
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(sys.platform != "linux", reason="no display on Linux only")
+def test_eval_video_records_the_actor_or_is_refused_before_training(tmp_path):
+    video = ("env.name=Hopper-v5", "collector.total_frames=400", "eval.video=true")
+    # no display, no MUJOCO_GL: one message before anything runs, nothing left
+    refused = _run_with_env(tmp_path / "refused", {}, *video)
+    assert refused.returncode == 2, refused.stderr[-3000:]
+    assert refused.stderr.strip().splitlines() == [
+        line
+        for line in refused.stderr.strip().splitlines()
+        if line.startswith("Error:")
+    ]
+    assert "set MUJOCO_GL=egl" in refused.stderr and "Traceback" not in refused.stderr
+    assert not (tmp_path / "refused").exists()
+    run_dir = tmp_path / "egl"
+    proc = _run_with_env(run_dir, {"MUJOCO_GL": "egl"}, *video)
+    if proc.returncode == 2 and "MUJOCO_GL" in proc.stderr:
+        pytest.skip(f"no headless OpenGL (EGL) here: {proc.stderr[-300:]}")
+    gif = run_dir / "videos" / "episode_400.gif"
+    assert proc.returncode == 0 and f"Video: {gif}" in proc.stdout, proc.stderr
+    with Image.open(gif) as image:
+        # a Hopper episode: at least a few steps before it falls, 240x240
+        assert image.n_frames > 5 and image.size == (240, 240)

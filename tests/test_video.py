@@ -136,6 +136,28 @@ def test_a_gif_write_that_fails_names_the_file_and_leaves_nothing(
     assert list(path.parent.iterdir()) == []
 
 
+def test_a_run_whose_video_cannot_be_written_says_it_is_saved_and_how_to_finish(
+    tmp_path, monkeypatch
+):
+    import errno
+
+    import common.files
+    from common.video import VideoUnavailable, save_video
+
+    env = make_minigrid_video_env("MiniGrid-Empty-5x5-v0", seed=0, tile_size=8)
+
+    def full_disk(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(common.files.os, "fsync", full_disk)
+    with pytest.raises(VideoUnavailable) as err:
+        save_video(env, env.rand_action, tmp_path, 64, episodes=1, deterministic=False)
+    message = str(err.value)
+    assert "The run is finished and saved, but not its video" in message
+    assert "no space left on device" in message and "run the same command" in message
+    assert list((tmp_path / "videos").iterdir()) == []
+
+
 def test_the_video_env_gives_the_policy_the_training_envs_observations():
     # with the noisy TV on: the recipe's transforms are the video env's; on
     # minigrid's envs, whose layouts the video env draws (envpool's: the next test)
@@ -285,7 +307,7 @@ def test_mujoco_without_a_display_or_mujoco_gl_names_mujoco_gl(tmp_path):
         tmp_path / "x.gif", MUJOCO_GL=None, DISPLAY=None, WAYLAND_DISPLAY=None
     )
     assert proc.returncode != 0
-    assert "RuntimeError: MuJoCo could not render without a display" in proc.stderr
+    assert "VideoUnavailable: MuJoCo could not render without a display" in proc.stderr
     assert "set MUJOCO_GL=egl (or MUJOCO_GL=osmesa)" in proc.stderr
 
 
@@ -299,3 +321,18 @@ def test_the_recipe_with_eval_video_prints_the_gifs_path(tmp_path):
     assert f"Video: {gif}" in proc.stdout.splitlines()
     stored, durations = read_gif(gif)
     assert len(stored) > 1 and sum(durations) >= 2 * 100
+
+
+@pytest.mark.slow
+def test_a_finished_run_missing_its_curve_and_video_writes_them_on_rerun(tmp_path):
+    run_dir = tmp_path / "run"
+    run = ("bonus=none", "collector.total_frames=128", "eval.video=true")
+    run_recipe(run_dir, *run)
+    gif, curve = run_dir / "videos" / "episode_128.gif", run_dir / "learning_curve.png"
+    assert gif.exists() and curve.exists()
+    gif.unlink()
+    curve.unlink()
+    proc = run_recipe(run_dir, *run)
+    assert f"writing what its end left missing: {curve}, {gif}" in proc.stdout
+    assert f"Video: {gif}" in proc.stdout and gif.exists() and curve.exists()
+    assert "Nothing to do: 128 frames" in run_recipe(run_dir, *run).stdout

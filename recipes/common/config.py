@@ -466,6 +466,17 @@ class MiniGridConfig:
 
 # The DDPG recipe (recipes/ddpg_mujoco/config.yaml).
 @dataclass
+class DDPGEvalConfig(EvalConfig):
+    """``eval`` of the DDPG recipe."""
+
+    video: bool = required()
+    """Record the final actor's episodes as a GIF (``common.video``); MuJoCo
+    renders with OpenGL: without a display, MUJOCO_GL=egl."""
+    video_episodes: int = required(POSITIVE)
+    """Episodes in that GIF; > 0."""
+
+
+@dataclass
 class DDPGEnvConfig:
     """``env`` of the DDPG recipe."""
 
@@ -592,7 +603,7 @@ class DDPGConfig:
     exploration: ExplorationConfig = section(ExplorationConfig)
     obs_norm: ObsNormConfig = section(ObsNormConfig)
     intrinsic: DDPGIntrinsicConfig = section(DDPGIntrinsicConfig)
-    eval: EvalConfig = section(EvalConfig)
+    eval: DDPGEvalConfig = section(DDPGEvalConfig)
     logger: LoggerConfig = section(LoggerConfig)
     checkpoint: CheckpointConfig = section(CheckpointConfig)
 

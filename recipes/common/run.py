@@ -38,7 +38,7 @@ from .rundir import (
     prepare_run,
     write_run_record,
 )
-from .scalar_logs import ScalarCSVWriter
+from .scalar_logs import ScalarCSVWriter, scalar_log_files
 from .stopping import (
     StopSignal,
     exit_process,
@@ -162,15 +162,39 @@ class TrainingRun:
             self.abandon()
             raise
 
-    def nothing_to_do(self) -> bool:
+    @property
+    def done_frames(self) -> int:
+        """The frames the checkpoint to resume from holds (0 for a new run)."""
+        return 0 if self.resumed_from is None else int(self.resumed_from["frames"])
+
+    def nothing_to_do(self, outputs: Sequence[Path] = ()) -> bool:
         """Whether the checkpoint already holds ``collector.total_frames`` frames
-        (a finished run in a rerun sweep), or another sweep runs this job, saying
-        so."""
+        (a finished run in a rerun sweep) and the run's end left everything it
+        writes, or another sweep runs this job, saying so.
+
+        A finished run whose end is missing something (its learning curve when it
+        logged scalars, one of ``outputs``: the video a recipe records at its
+        end) has something to do: it is resumed, trains no further, and its end
+        writes what is missing.
+
+        Args:
+            outputs: the files the recipe's end writes, besides the curve.
+        """
         if self._skipped:
             print(self._skipped)
             return True
-        frames = 0 if self.resumed_from is None else self.resumed_from["frames"]
+        frames = self.done_frames
         if frames < self.cfg.collector.total_frames:
+            return False
+        missing = [Path(p) for p in outputs if not Path(p).exists()]
+        curve = self.run_dir / CURVE_NAME
+        if not curve.exists() and scalar_log_files(self.run_dir):
+            missing.insert(0, curve)
+        if missing:
+            print(
+                f"Finished at {frames} frames; writing what its end left missing: "
+                + ", ".join(str(p) for p in missing)
+            )
             return False
         self._lock.release()
         print(f"Nothing to do: {frames} frames already done in {self.run_dir}.")

@@ -12,8 +12,11 @@ the reset and after every step the gymnasium env's ``render()`` gives a frame.
 * :func:`record_episodes`: the frames of ``episodes`` episodes of a policy.
 * :func:`write_gif`: the frames as a GIF (imageio), written whole or not at all.
 * :func:`log_video`: the frames to a TorchRL logger that takes videos.
-* :func:`record_minigrid_video`: all of it for the MiniGrid recipe's run
-  (``eval.video=true``): ``<run dir>/videos/episode_<frames>.gif``.
+* :func:`save_video`: all of it for a run's end (``eval.video=true``):
+  ``<run dir>/videos/episode_<frames>.gif``; a video that cannot be rendered or
+  written is one :class:`VideoUnavailable` message. The recipes' own:
+  :func:`record_minigrid_video`, :func:`record_mujoco_video` (with
+  :func:`check_mujoco_rendering` at the run's start).
 
 Why not TorchRL's ``VideoRecorder``: it records a pixel entry of the
 tensordict, so the env would have to write every frame into its step outputs
@@ -36,6 +39,7 @@ MuJoCo renders through OpenGL: without a display, ``MUJOCO_GL=egl`` (or
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -43,6 +47,7 @@ import numpy as np
 import torch
 from torchrl.envs import EnvBase, TransformedEnv
 
+from .errors import UserMistake
 from .files import write_atomically, write_failure
 from .minigrid import make_env
 
@@ -50,11 +55,16 @@ __all__ = [
     "DEFAULT_FPS",
     "VIDEO_DIR",
     "VideoFrames",
+    "VideoUnavailable",
+    "check_mujoco_rendering",
     "log_video",
     "make_minigrid_video_env",
     "make_mujoco_video_env",
     "record_episodes",
     "record_minigrid_video",
+    "record_mujoco_video",
+    "save_video",
+    "video_path",
     "write_gif",
 ]
 
@@ -106,15 +116,23 @@ def _render_source(env: EnvBase):
     return gym_env
 
 
+class VideoUnavailable(UserMistake, RuntimeError):
+    """A video that could not be recorded: frames that do not render (MuJoCo
+    without a display or ``MUJOCO_GL``), a GIF that could not be written."""
+
+
 def _render(gym_env) -> np.ndarray:
     try:
-        frame = gym_env.render()
+        with warnings.catch_warnings():
+            # GLFW's own warnings of a missing display: the error below says it
+            warnings.filterwarnings("ignore", module="glfw")
+            frame = gym_env.render()
     except Exception as err:
         # mujoco.FatalError, PyOpenGL's errors, gymnasium's ValueError for a bad
         # MUJOCO_GL: no common type, one cause
         if not hasattr(gym_env.unwrapped, "mujoco_renderer"):
             raise
-        raise RuntimeError(
+        raise VideoUnavailable(
             "MuJoCo could not render without a display (MUJOCO_GL="
             f"{os.environ.get('MUJOCO_GL') or '<unset>'}): set MUJOCO_GL=egl (or "
             "MUJOCO_GL=osmesa) in the environment before Python starts, e.g. "
@@ -337,8 +355,6 @@ def log_video(
         >>> log_video(logger, np.zeros((2, 4, 4, 3), np.uint8), step=0)
         False
     """
-    import warnings
-
     from torchrl.record.loggers import CSVLogger
 
     if logger is None or isinstance(logger, CSVLogger):
@@ -450,6 +466,52 @@ def make_mujoco_video_env(
     return _with_transforms_of(base, like, seed)
 
 
+def video_path(run_dir: str | os.PathLike, frames: int) -> Path:
+    """Where a run's video of its policy after ``frames`` frames goes.
+
+    Examples:
+        >>> video_path("run", 1024).as_posix()
+        'run/videos/episode_1024.gif'
+    """
+    return Path(run_dir) / VIDEO_DIR / f"episode_{frames}.gif"
+
+
+def save_video(
+    env: EnvBase,
+    policy,
+    run_dir: str | os.PathLike,
+    frames: int,
+    *,
+    episodes: int,
+    deterministic: bool,
+    logger=None,
+    fps: int = DEFAULT_FPS,
+) -> Path:
+    """A run's video: :func:`record_episodes` on ``env`` (closed after), the GIF
+    at :func:`video_path`, the frames to ``logger`` (:func:`log_video`).
+
+    Raises:
+        VideoUnavailable: the frames could not be rendered, or the GIF written
+            (a full disk, no permission); the message says that the run itself
+            is saved and that rerunning its command writes the video.
+    """
+    path = video_path(run_dir, frames)
+    try:
+        try:
+            video = record_episodes(env, policy, episodes, deterministic=deterministic)
+        finally:
+            env.close()
+        write_gif(video.frames, path, fps)
+    except UserMistake as err:
+        raise VideoUnavailable(
+            f"The run is finished and saved, but not its video ({path}): {err} "
+            "Once that is fixed, run the same command again: a finished run "
+            "writes the video (and learning curve) it lacks."
+        ) from err
+    log_video(logger, video.frames, step=frames, fps=fps)
+    return path
+
+
 def record_minigrid_video(
     cfg,
     policy,
@@ -466,7 +528,7 @@ def record_minigrid_video(
     recipe's env (``common.minigrid.make_env``: ``env.stochasticity``'s noise
     included), sampled or greedy as ``eval.deterministic`` says; written to
     ``<run_dir>/videos/episode_<frames>.gif`` and handed to ``logger``
-    (:func:`log_video`) at step ``frames``.
+    (:func:`save_video`) at step ``frames``.
 
     Args:
         cfg: the recipe's config (``env.*``, ``eval.deterministic``,
@@ -490,17 +552,75 @@ def record_minigrid_video(
     )
     like.close()
     env = make_minigrid_video_env(cfg.env.name, seed, like=like)
+    return save_video(
+        env,
+        policy,
+        run_dir,
+        frames,
+        episodes=cfg.eval.video_episodes,
+        deterministic=cfg.eval.deterministic,
+        logger=logger,
+        fps=fps,
+    )
+
+
+def check_mujoco_rendering(env_name: str) -> None:
+    """Renders one frame of ``env_name``, so that a run asked for a video
+    (``eval.video=true``) fails at its start, not at its end, where MuJoCo
+    cannot render (no display and no ``MUJOCO_GL=egl``).
+
+    Raises:
+        VideoUnavailable: MuJoCo cannot render here; the message says what to set.
+    """
+    env = make_mujoco_video_env(env_name, seed=0, width=16, height=16)
     try:
-        video = record_episodes(
-            env,
-            policy,
-            cfg.eval.video_episodes,
-            deterministic=cfg.eval.deterministic,
-        )
+        env.reset()
+        _render(_render_source(env))
     finally:
         env.close()
-    path = write_gif(
-        video.frames, Path(run_dir) / VIDEO_DIR / f"episode_{frames}.gif", fps
+
+
+def record_mujoco_video(
+    cfg,
+    policy,
+    run_dir: str | os.PathLike,
+    frames: int,
+    *,
+    seed: int,
+    like: EnvBase,
+    logger=None,
+) -> Path:
+    """The DDPG recipe's video: ``eval.video_episodes`` episodes of its actor.
+
+    Recorded on :func:`make_mujoco_video_env` under the transforms of ``like``
+    (an env the recipe built, ``num_envs=1``), the actor without exploration
+    noise, as the evaluation runs it; written to
+    ``<run_dir>/videos/episode_<frames>.gif`` at MuJoCo's frame rate (the env's
+    ``render_fps``: real time) and handed to ``logger`` (:func:`save_video`).
+
+    Args:
+        cfg: the recipe's config (``env.name``, ``eval.video_episodes``).
+        policy: the actor (deterministic: it adds no noise).
+        run_dir: the run directory.
+        frames (int): the training frames the policy had: the GIF's name.
+        seed (int): the env's seed (the run's evaluation seed).
+        like: an env of the recipe whose transforms the video env copies.
+        logger: the run's TorchRL logger, or ``None``.
+
+    Returns:
+        The GIF's path.
+    """
+    env = make_mujoco_video_env(cfg.env.name, seed, like=like)
+    # real time, up to 50 frames a second: a viewer shows a GIF frame of less
+    # than 20 ms for 100 ms
+    fps = min(int(_render_source(env).metadata.get("render_fps", DEFAULT_FPS)), 50)
+    return save_video(
+        env,
+        policy,
+        run_dir,
+        frames,
+        episodes=cfg.eval.video_episodes,
+        deterministic=True,
+        logger=logger,
+        fps=fps,
     )
-    log_video(logger, video.frames, step=frames, fps=fps)
-    return path

@@ -62,6 +62,7 @@ from common.errors import report_mistakes
 from common.evaluation import EVAL_SEED_OFFSET, EpisodeStats, evaluate
 from common.run import TrainingRun
 from common.stopping import register_sweep_pickling, sweep_requested
+from common.video import check_mujoco_rendering, record_mujoco_video, video_path
 
 
 @dataclass
@@ -95,12 +96,22 @@ def main(cfg) -> None:
     validate_ddpg(cfg)
     # Seeds, resume checks, the checkpoint to resume from (common/run.py)
     run = TrainingRun(cfg, "ddpg")
-    if run.nothing_to_do():
+    # a finished run writes the video (or curve) its end left missing
+    video = [video_path(run.run_dir, run.done_frames)] if cfg.eval.video else []
+    if run.nothing_to_do(outputs=video):
         return
     with run.starting():  # a mistake before the run starts leaves nothing behind
+        if cfg.eval.video:
+            # MuJoCo renders with OpenGL: refused now, not after the training
+            check_mujoco_rendering(cfg.env.name)
         training = build(cfg, run)
     frames, updates, fps, ups = train(cfg, run, training)
-    stats = training.stats
+    finish(cfg, run, training, frames, updates, fps, ups)
+
+
+def finish(cfg, run: TrainingRun, t: Training, frames, updates, fps, ups) -> None:
+    """The final checkpoint and learning curve, then the video."""
+    stats = t.stats
     run.finish(
         f"{frames} frames, {updates} updates, {stats.episodes} episodes, last "
         f"{cfg.logger.episode_window}-episode mean return {stats.mean_return:.1f}, "
@@ -112,6 +123,21 @@ def main(cfg) -> None:
         title=f"{cfg.env.name}: DDPG + {cfg.bonus} (seed {cfg.seed})",
         ylabel="extrinsic episode return",
     )
+    if cfg.eval.video:
+        # The final actor, without noise, on the evaluation's first episodes, as
+        # a GIF (and to a logger that shows videos)
+        like = make_env(cfg, 1, seed=t.eval_seed)
+        like.close()
+        video = record_mujoco_video(
+            cfg,
+            t.actor,
+            run.run_dir,
+            frames,
+            seed=t.eval_seed,
+            like=like,
+            logger=run.logger,
+        )
+        print(f"Video: {video}")
 
 
 def build(cfg, run: TrainingRun) -> Training:

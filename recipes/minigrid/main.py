@@ -67,7 +67,7 @@ from common.minigrid import (
 )
 from common.run import TrainingRun
 from common.stopping import register_sweep_pickling, sweep_requested
-from common.video import record_minigrid_video
+from common.video import record_minigrid_video, video_path
 
 
 @dataclass
@@ -105,7 +105,9 @@ def main(cfg) -> None:
     device = check(cfg)
     # Seeds, resume checks, the checkpoint to resume from (common/run.py)
     run = TrainingRun(cfg, cfg.algo.name)
-    if run.nothing_to_do():
+    # a finished run writes the video (or curve) its end left missing
+    video = [video_path(run.run_dir, run.done_frames)] if cfg.eval.video else []
+    if run.nothing_to_do(outputs=video):
         return
     with run.starting():  # a mistake before the run starts leaves nothing behind
         training = build(cfg, run, device)
