@@ -7,6 +7,9 @@ the CLI reads a checkpoint the test writes in the recipe's format.
 from __future__ import annotations
 
 import csv
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -16,6 +19,7 @@ from tensordict import TensorDict
 
 from results.heatmap import (
     CATEGORIES,
+    NotAHeatmapRun,
     bonus_grid,
     category_means,
     category_table,
@@ -448,3 +452,30 @@ def test_summary_refuses_mixed_envs_and_layouts_without_summary(tmp_path):
         main([str(first), "--layout-seeds", "0", "1", "--out", str(tmp_path / "x.png")])
     with pytest.raises(FileNotFoundError, match="nowhere_layouts.csv"):
         main(["--from-layouts", str(tmp_path / "nowhere_layouts.csv")])
+
+
+def test_a_ddpg_run_is_refused_in_one_line_naming_the_minigrid_recipe(tmp_path):
+    # a DDPG run with the VAE bonus: its VAE has no use_direction, no maze
+    transform = small_transform()
+    config = {
+        "bonus": "vae",
+        "env": {"name": "Hopper-v5"},
+        "intrinsic": {"normalization": "none", "vae": {"latent_dim": 4}},
+    }
+    torch.save(
+        {"config": config, "frames": 600, "bonus_transform": transform.state_dict()},
+        tmp_path / "checkpoint.pt",
+    )
+    with pytest.raises(NotAHeatmapRun, match="heatmap maps a MiniGrid maze"):
+        load_bonus_transform(tmp_path)
+    script = Path(__file__).resolve().parents[1] / "recipes" / "results" / "heatmap.py"
+    proc = subprocess.run(
+        [sys.executable, str(script), str(tmp_path), "--out", str(tmp_path / "h")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 2
+    (line,) = proc.stderr.strip().splitlines()
+    assert line.startswith(f"Error: {tmp_path} is a run of Hopper-v5, not of the")
+    assert "recipes/minigrid/main.py with bonus=vae" in line

@@ -91,8 +91,11 @@ from tensordict import TensorDict
 # Run as a script: recipes/ holds the shared `common` and `results` packages.
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from common.errors import UserMistake, report_mistakes
+
 __all__ = [
     "CATEGORIES",
+    "NotAHeatmapRun",
     "UNMAPPED_VARIANTS",
     "bonus_grid",
     "category_means",
@@ -558,6 +561,41 @@ def _groups(env, open_doors: bool) -> dict[str, np.ndarray]:
 
 
 # ------------------------------------------------------------------ checkpoint
+class NotAHeatmapRun(UserMistake, ValueError):
+    """A run the surprise heatmap cannot draw: not a MiniGrid run, no VAE bonus,
+    or a VAE variant without a map of cells; the message says which."""
+
+
+def _check_heatmap_run(path: Path, config: Mapping[str, Any]) -> None:
+    """Refuses a run whose checkpoint has no map of MiniGrid cells to draw."""
+    from common.bonuses import VAE_VARIANTS
+
+    env_name = str((config.get("env") or {}).get("name", ""))
+    if not env_name.startswith("MiniGrid"):
+        raise NotAHeatmapRun(
+            f"{path} is a run of {env_name or 'an unknown env'}, not of the MiniGrid "
+            "recipe: the surprise heatmap maps a MiniGrid maze's cells, for runs of "
+            "recipes/minigrid/main.py with bonus=vae."
+        )
+    if config.get("bonus") != "vae":
+        raise NotAHeatmapRun(
+            f"{path}: this run's bonus is {config.get('bonus')!r}, not 'vae'; the "
+            "surprise heatmap needs a run made with bonus=vae."
+        )
+    variant = config["intrinsic"]["vae"].get("variant", "kl")
+    if variant not in VAE_VARIANTS:
+        raise NotAHeatmapRun(
+            f"{path}: unknown intrinsic.vae.variant {variant!r}; expected one of "
+            f"{tuple(VAE_VARIANTS)}."
+        )
+    if variant in UNMAPPED_VARIANTS:
+        raise NotAHeatmapRun(
+            f"{path}: intrinsic.vae.variant {variant!r} pays a transition (s, s'), "
+            "not a state, so it has no map of cells; the heatmap draws the "
+            f"variants {tuple(v for v in VAE_VARIANTS if v not in UNMAPPED_VARIANTS)}."
+        )
+
+
 def load_bonus_transform(run_dir_or_ckpt: str | os.PathLike):
     """The VAE bonus transform of an A2C-MiniGrid run, as the recipe built it.
 
@@ -573,7 +611,9 @@ def load_bonus_transform(run_dir_or_ckpt: str | os.PathLike):
 
     Raises:
         FileNotFoundError: no checkpoint there.
-        ValueError: the run has no VAE bonus, or the checkpoint lacks it.
+        NotAHeatmapRun: not a MiniGrid run, no VAE bonus, or a variant with no
+            map (a ``ValueError``).
+        ValueError: the checkpoint lacks the bonus.
 
     Examples:
         >>> import tempfile, os, torch
@@ -605,29 +645,14 @@ def load_bonus_transform(run_dir_or_ckpt: str | os.PathLike):
     ckpt = load_checkpoint(ckpt_path)
     config = ckpt.get("config") if isinstance(ckpt, Mapping) else None
     if not isinstance(config, Mapping):
-        raise ValueError(f"{ckpt_path}: not a recipe checkpoint (no 'config').")
-    if config.get("bonus") != "vae":
-        raise ValueError(
-            f"{path}: this run's bonus is {config.get('bonus')!r}, not 'vae'; the "
-            "surprise heatmap needs a run made with bonus=vae."
-        )
+        raise NotAHeatmapRun(f"{ckpt_path}: not a recipe checkpoint (no 'config').")
+    _check_heatmap_run(path, config)
     state = ckpt.get("bonus_transform")
     if state is None:
         raise ValueError(f"{ckpt_path}: the checkpoint holds no 'bonus_transform'.")
     icfg = config["intrinsic"]
     vcfg = icfg["vae"]
     variant = vcfg.get("variant", "kl")
-    if variant not in VAE_VARIANTS:
-        raise ValueError(
-            f"{path}: unknown intrinsic.vae.variant {variant!r}; expected one of "
-            f"{tuple(VAE_VARIANTS)}."
-        )
-    if variant in UNMAPPED_VARIANTS:
-        raise ValueError(
-            f"{path}: intrinsic.vae.variant {variant!r} pays a transition (s, s'), "
-            "not a state, so it has no map of cells; the heatmap draws the "
-            f"variants {tuple(v for v in VAE_VARIANTS if v not in UNMAPPED_VARIANTS)}."
-        )
     vae = StateVAE.for_minigrid(
         latent_dim=vcfg["latent_dim"],
         hidden_dim=vcfg["hidden_dim"],
@@ -1353,4 +1378,5 @@ def _summary_main(args, sources: Sequence[str]) -> Path:
 
 
 if __name__ == "__main__":
-    main()
+    # a run the heatmap cannot draw is one line, not a traceback
+    report_mistakes(main)()
