@@ -7,8 +7,10 @@ from __future__ import annotations
 
 import ast
 import copy
+import hashlib
 import inspect
 import itertools
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -119,9 +121,23 @@ def test_every_sweep_job_composes_and_validates(recipe, experiment):
             variants = OmegaConf.select(cfg, "intrinsic.vae.variant") is not None
             if cfg.bonus == "vae" and "+setting" in job and variants:
                 # settings name the VAE variant they measure, never the default
-                path = RECIPES / recipe / "setting" / f"{job['+setting']}.yaml"
+                name = f"{job['+setting']}.yaml"
+                folders = (RECIPES / recipe, RECIPES / recipe / "studies")
+                path = next(
+                    f / "setting" / name
+                    for f in folders
+                    if (f / "setting" / name).is_file()
+                )
                 text = path.read_text()
                 assert "variant:" in text, f"{path.name} must name its VAE variant"
+    # and it runs what it ran when its results were committed (SNAPSHOT)
+    recorded = json.loads(SNAPSHOT.read_text()).get(f"{recipe}/{experiment}")
+    assert recorded is not None, f"{experiment}: not in {SNAPSHOT.name}"
+    found = _experiment_digests(recipe, experiment, by_groups)
+    changed = sorted(
+        k for k in set(found) | set(recorded) if found.get(k) != recorded.get(k)
+    )
+    assert changed == [], f"{experiment}: composed config changed for {changed}"
 
 
 def test_a_jobs_values_go_on_its_composed_groups_as_hydra_puts_them():
@@ -499,3 +515,70 @@ def test_a_bad_value_exits_the_script_before_the_run_starts(tmp_path):
     assert proc.returncode != 0
     assert "optim.lr must be a finite number > 0, got inf." in proc.stderr
     assert not run_dir.exists() or not any(run_dir.glob("checkpoint*"))
+
+
+# ------------------------------------- committed experiments keep their configs
+
+# Every committed experiment's sweep grid and each of its jobs' resolved configs,
+# as digests: a move of config files, or a new default, must not change what a
+# committed experiment runs (its results would no longer reproduce). After a
+# deliberate change (a new experiment, or one meant to run otherwise), rewrite
+# the record with `PYTHONPATH=recipes python tests/test_configs.py` and say why
+# in the commit.
+SNAPSHOT = Path(__file__).resolve().parent / "data" / "experiment_configs.json"
+
+
+def _digest(value) -> str:
+    text = json.dumps(value, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _experiment_digests(recipe: str, experiment: str, by_groups=None) -> dict:
+    """{"sweep": the grid's digest, "<group choices>": the resolved config's}."""
+    with initialize_config_dir(config_dir=str(RECIPES / recipe), version_base=None):
+        base = [f"+experiment={experiment}"]
+        sweep = compose("config", overrides=base, return_hydra_config=True)
+        params = {k: sweep_values(v) for k, v in sweep.hydra.sweeper.params.items()}
+        digests = {"sweep": _digest(params)}
+        groups = [k for k in params if is_group(recipe, k)]
+        for choice in itertools.product(*(params[k] for k in groups)):
+            key = tuple(f"{k}={v}" for k, v in zip(groups, choice))
+            cfg = (by_groups or {}).get(key)
+            if cfg is None:
+                cfg = compose("config", overrides=[*base, *key])
+            digests[",".join(key)] = _digest(OmegaConf.to_container(cfg, resolve=True))
+    return digests
+
+
+if __name__ == "__main__":  # rewrite the record (run from the repository root)
+    record = {
+        f"{recipe}/{experiment}": _experiment_digests(recipe, experiment)
+        for recipe, experiment in EXPERIMENTS
+    }
+    SNAPSHOT.write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
+    print(f"Wrote {SNAPSHOT} ({len(record)} experiments)")
+
+
+def test_a_user_chooses_among_bonuses_and_studies_keep_their_variants():
+    # setting/ holds what a user picks (the bonuses, the recommended variants);
+    # a study's variants are in studies/setting/, found by +setting= as well
+    minigrid = RECIPES / "minigrid"
+    chosen = {p.stem for p in (minigrid / "setting").glob("*.yaml")}
+    assert chosen == {
+        "none",
+        "vae",
+        "vae_literal",
+        "vae_elliptical",
+        "vae_elliptical_kl",
+        "vae_noveld",
+        "icm",
+        "rnd",
+        "e3b",
+        "e3b_128",
+        "noveld",
+    }
+    study = minigrid / "studies" / "setting" / "vae_elliptical_every4.yaml"
+    assert study.is_file()
+    cfg = composed("minigrid", ["+setting=vae_elliptical_every4"])
+    assert cfg.setting == "vae_elliptical_every4" and cfg.intrinsic.update_every == 4
+    assert not set(chosen) & {p.stem for p in study.parent.glob("*.yaml")}

@@ -493,7 +493,7 @@ def documented_results_message(
         >>> documented_results_message("MiniGrid-DoorKey-5x5-v0", 123, ".", "a2c_minigrid")
         ''
     """
-    where = "recipes/minigrid/setting/<label>.yaml"
+    where = "recipes/minigrid/setting/ (or studies/setting/)<label>.yaml"
     blocks = []
     tasks = [task]
     if task.endswith(ENVPOOL_SUFFIX):
