@@ -251,3 +251,60 @@ def test_torchrl_distributed_collector_runs_here_in_algorithm_1_order():
                 last[2] = 100.0
     finally:
         collector.shutdown()
+
+
+def test_a_worker_that_dies_is_named_with_how_it_ended_and_what_to_do():
+    from torchrl.envs.utils import RandomPolicy
+
+    from torchrl_surprise.collectors import (
+        CollectorWorkerDied,
+        ResumableMultiSyncCollector,
+    )
+    from torchrl_surprise.envs import make_minigrid_env
+
+    task = "MiniGrid-Empty-5x5-v0"
+    factories = [
+        functools.partial(make_minigrid_env, task, num_envs=1, seed=w) for w in range(2)
+    ]
+    spec = make_minigrid_env(task, num_envs=1).action_spec
+    collector = ResumableMultiSyncCollector(
+        factories, RandomPolicy(spec), frames_per_batch=4, total_frames=64, seed=0
+    )
+    try:
+        batches = iter(collector)
+        next(batches)
+        worker = collector.procs[1]
+        os.kill(worker.pid, signal.SIGKILL)  # as the out-of-memory killer does
+        worker.join()
+        with pytest.raises(CollectorWorkerDied) as err:
+            next(batches)
+    finally:
+        collector.shutdown(raise_on_error=False)
+    assert (err.value.worker, err.value.pid, err.value.exitcode) == (
+        1,
+        worker.pid,
+        -signal.SIGKILL,
+    )
+    message = str(err.value)
+    assert f"collector worker 1 (process {worker.pid}) died" in message
+    assert (
+        "killed by SIGKILL" in message and "resumes from its last checkpoint" in message
+    )
+
+
+def test_a_recipe_whose_worker_died_ends_with_one_line_and_the_resume_command(
+    capsys,
+):
+    from common.errors import report_mistakes
+    from torchrl_surprise.collectors import CollectorWorkerDied
+
+    @report_mistakes
+    def main():
+        raise CollectorWorkerDied(0, 4242, 3)
+
+    with pytest.raises(SystemExit) as exit:
+        main()
+    assert exit.value.code == 1
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith("Error: collector worker 0 (process 4242) died")
+    assert "exited with code 3" in line

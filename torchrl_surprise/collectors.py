@@ -41,6 +41,7 @@ from torchrl.weight_update import SharedMemWeightSyncScheme
 
 __all__ = [
     "STOP_SIGNALS",
+    "CollectorWorkerDied",
     "ResumableCollector",
     "ResumableMultiSyncCollector",
     "worker_seed",
@@ -130,6 +131,40 @@ class ResumableCollector(Collector):
         super().load_state_dict(state, **kwargs)
         _runtime_env(self.env).load_runtime_state(runtime)
         self._carrier.update(carrier, inplace=True)
+
+
+class CollectorWorkerDied(RuntimeError):
+    """A worker process of :class:`ResumableMultiSyncCollector` died while
+    collecting: the message names it (index, process id), how it ended (the
+    signal that killed it, or its exit code) and what to do.
+
+    Attributes:
+        worker (int): the worker's index.
+        pid (int): its process id.
+        exitcode (int): its exit code (``-N``: killed by signal ``N``).
+
+    Examples:
+        >>> print(CollectorWorkerDied(1, 4242, -9))  # doctest: +ELLIPSIS
+        collector worker 1 (process 4242) died while collecting: killed by SIGKILL...
+    """
+
+    def __init__(self, worker: int, pid: int, exitcode: int):
+        self.worker, self.pid, self.exitcode = worker, pid, exitcode
+        if exitcode is not None and exitcode < 0:
+            try:
+                how = f"killed by {signal.Signals(-exitcode).name}"
+            except ValueError:
+                how = f"killed by signal {-exitcode}"
+            if exitcode == -signal.SIGKILL:
+                how += " (often the out-of-memory killer: check the memory left)"
+        else:
+            how = f"exited with code {exitcode} (its error is printed above it)"
+        super().__init__(
+            f"collector worker {worker} (process {pid}) died while collecting: "
+            f"{how}. The batch it was collecting is lost and the collector stops; "
+            "the other workers are shut down. A run resumes from its last "
+            "checkpoint with the same number of workers."
+        )
 
 
 def worker_seed(seed: int, worker: int) -> int:
@@ -284,6 +319,33 @@ class ResumableMultiSyncCollector(MultiSyncCollector):
         super().shutdown(
             timeout=timeout, close_env=close_env, raise_on_error=raise_on_error
         )
+
+    def iterator(self):
+        """TorchRL's batches; a worker that dies raises :class:`CollectorWorkerDied`
+        naming it, where TorchRL raises a broken pipe or "At least one process
+        failed"."""
+        batches = super().iterator()
+        while True:
+            try:
+                batch = next(batches)
+            except StopIteration:
+                return
+            # TorchRL: "At least one process failed", a broken pipe, or a
+            # ValueError where it closes a live worker it has just terminated
+            except (RuntimeError, OSError, EOFError, ValueError) as err:
+                dead = self._dead_worker()
+                if dead is None:
+                    raise
+                raise CollectorWorkerDied(*dead) from err
+            yield batch
+
+    def _dead_worker(self) -> tuple[int, int, int] | None:
+        """``(index, pid, exit code)`` of the first worker that has ended."""
+        for index, process in enumerate(getattr(self, "procs", [])):
+            # TorchRL closes the processes it stops after finding a dead one
+            if not process._closed and not process.is_alive():
+                return index, process.pid, process.exitcode
+        return None
 
     def load_state_dict(self, state_dict: OrderedDict) -> None:
         saved = sum(1 for k in state_dict if str(k).startswith("worker"))

@@ -5,6 +5,9 @@ directory in use, a changed experiment on resume) are :class:`UserMistake`; a
 recipe's ``main`` runs under :func:`report_mistakes`, which prints such an error's
 message on stderr, with no traceback, and exits with status 2. Any other exception
 is a bug and keeps its traceback; so does a mistake under ``HYDRA_FULL_ERROR=1``.
+A collector worker that died (:class:`~torchrl_surprise.collectors.CollectorWorkerDied`:
+killed, out of memory) is no mistake but no bug of the recipe either: it is one
+message too, with the command that resumes the run, and exit status 1.
 """
 
 from __future__ import annotations
@@ -18,7 +21,9 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from .stopping import in_sweep
+from torchrl_surprise.collectors import CollectorWorkerDied
+
+from .stopping import in_sweep, resume_command
 
 __all__ = [
     "ConfigError",
@@ -69,10 +74,25 @@ def _hydra_run_dir() -> Path | None:
         return None
 
 
+def _print_error(message: str) -> None:
+    # on a line of its own, a progress bar cleared first
+    with tqdm.external_write_mode(file=sys.stderr):
+        print(f"Error: {message}", file=sys.stderr, flush=True)
+
+
 @contextlib.contextmanager
 def _reporting() -> Iterator[None]:
     try:
         yield
+    except CollectorWorkerDied as err:
+        if os.environ.get("HYDRA_FULL_ERROR") == "1":
+            raise
+        run_dir = _hydra_run_dir()
+        resume = f" Resume with: {resume_command(run_dir)}" if run_dir else ""
+        _print_error(f"{err}{resume}")
+        if in_sweep():
+            raise  # Hydra marks this job failed (a rerun of the sweep resumes it)
+        raise SystemExit(1) from None
     except UserMistake as err:
         if os.environ.get("HYDRA_FULL_ERROR") == "1":
             raise
@@ -82,9 +102,7 @@ def _reporting() -> Iterator[None]:
                 run_dir.rmdir()  # made by Hydra for this launch, which never started
             except OSError:
                 pass  # another launch wrote there since
-        # on a line of its own, a progress bar cleared first
-        with tqdm.external_write_mode(file=sys.stderr):
-            print(f"Error: {err}", file=sys.stderr, flush=True)
+        _print_error(str(err))
         if in_sweep():
             raise  # Hydra marks this job failed; the sweep's other jobs go on
         raise SystemExit(MISTAKE_EXIT_CODE) from None
