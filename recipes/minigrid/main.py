@@ -90,7 +90,7 @@ class Training:
     params: list
     optim: Any
     bonus_optim: Any
-    buffer: Any
+    batches: Any
     reward_clip: Any
     stats: EpisodeStats
     progress: RunCounters
@@ -164,7 +164,7 @@ def build(cfg, run: TrainingRun, device) -> Training:
         bonus_params = [p for p in bonus_loss.parameters() if p.requires_grad]
         # fused: the same Adam update in one kernel (faster VAE steps on CPU)
         bonus_optim = torch.optim.Adam(bonus_params, lr=cfg.intrinsic.lr, fused=True)
-    buffer = utils.make_minibatch_buffer(cfg, device)
+    batches = utils.make_minibatches(cfg)
 
     # Create the collector: it holds the episodes in progress and runs to
     # total_frames from its own saved frame count. With collector.workers > 1,
@@ -190,7 +190,7 @@ def build(cfg, run: TrainingRun, device) -> Training:
         params=params,
         optim=optim,
         bonus_optim=bonus_optim,
-        buffer=buffer,
+        batches=batches,
         reward_clip=utils.make_reward_clip(cfg),
         stats=EpisodeStats(window=cfg.logger.episode_window),
         progress=RunCounters(
@@ -218,7 +218,7 @@ def restore(run: TrainingRun, t: Training) -> None:
             "collector": t.collector,
             "stats": t.stats,
             # PPO: the minibatch order of the next update's first epoch, drawn already
-            "minibatch_sampler": None if t.buffer is None else t.buffer.sampler,
+            "minibatch_sampler": None if t.batches is None else t.batches.sampler,
             # intrinsic.vae.inverse_weight > 0: the inverse head on the VAE's latent
             # (the VAE itself is the bonus transform's)
             "bonus_inverse_head": inverse_head(t.bonus_loss),
@@ -326,8 +326,10 @@ def learner_update(cfg, run: TrainingRun, t: Training, data, frames: int):
     """Step 4: the learner's update, on the whole batch (A2C) or on epochs of
     shuffled minibatches (PPO); returns the means of its logged losses. A loss
     or a parameter that goes non-finite stops the run, naming it."""
-    minibatch_logs = []
-    for batch in utils.minibatches(data, t.buffer, cfg.loss.epochs):
+    logged = utils.LOGGED_LOSSES[cfg.algo.name]
+    max_grad_norm = cfg.optim.max_grad_norm
+    minibatch_logs = {}
+    for batch in utils.minibatches(data, t.batches, cfg.loss.epochs):
         # The shared trunk once, with gradients: the losses' heads read its
         # features.
         batch = t.trunk(batch)
@@ -335,7 +337,7 @@ def learner_update(cfg, run: TrainingRun, t: Training, data, frames: int):
         loss = (
             loss_td["loss_objective"] + loss_td["loss_critic"] + loss_td["loss_entropy"]
         )
-        logs = loss_td.select(*utils.LOGGED_LOSSES[cfg.algo.name]).detach()
+        logs = {key: loss_td[key].detach() for key in logged}
         if t.int_value_loss is not None:
             loss_int = t.int_value_loss(batch)["loss_critic_int"]
             loss = loss + loss_int
@@ -343,13 +345,12 @@ def learner_update(cfg, run: TrainingRun, t: Training, data, frames: int):
         run.check_finite(frames, **{k: v for k, v in logs.items() if "loss" in k})
         t.optim.zero_grad()
         loss.backward()
-        logs["grad_norm"] = torch.nn.utils.clip_grad_norm_(
-            t.params, cfg.optim.max_grad_norm
-        )
+        logs["grad_norm"] = torch.nn.utils.clip_grad_norm_(t.params, max_grad_norm)
         t.optim.step()
-        minibatch_logs.append(logs)
+        for key, value in logs.items():
+            minibatch_logs.setdefault(key, []).append(value)
     run.check_finite(frames, model=t.model, int_value=t.int_value)
-    return torch.stack(minibatch_logs).apply(lambda x: x.mean(), batch_size=[])
+    return {key: torch.stack(values).mean() for key, values in minibatch_logs.items()}
 
 
 def maybe_evaluate(cfg, run: TrainingRun, t: Training, frames: int) -> None:

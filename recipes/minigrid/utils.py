@@ -9,7 +9,7 @@ from tensordict import TensorDictBase
 from tensordict.nn import InteractionType, TensorDictModuleBase
 from tensordict.nn.probabilistic import interaction_type
 from torch.distributions import Categorical
-from torchrl.data import LazyTensorStorage, ReplayBuffer, SamplerWithoutReplacement
+from torchrl.data import SamplerWithoutReplacement
 from torchrl.envs.transforms import RewardClipping
 from torchrl.objectives import A2CLoss, ClipPPOLoss
 
@@ -21,7 +21,8 @@ __all__ = [
     "LOGGED_LOSSES",
     "SampledCategoricalPolicy",
     "make_loss",
-    "make_minibatch_buffer",
+    "Minibatches",
+    "make_minibatches",
     "make_optimizer",
     "make_reward_clip",
     "minibatches",
@@ -119,6 +120,9 @@ def make_loss(cfg, model, intrinsic_value, bonus_transform):
         "entropy_coeff": cfg.loss.entropy_coef,
         "critic_coeff": cfg.loss.critic_coef,
         "loss_critic_type": "l2",
+        # The heads as they are, not functionalised: no parameter set is swapped
+        # into them on every call (no target networks here); the same values.
+        "functional": False,
     }
     if cfg.algo.name == "a2c":
         loss = A2CLoss(**heads)
@@ -128,6 +132,7 @@ def make_loss(cfg, model, intrinsic_value, bonus_transform):
             clip_epsilon=cfg.loss.clip_epsilon,
             clip_value=True,
             normalize_advantage=bool(cfg.loss.normalize_advantage),
+            log_explained_variance=False,  # not logged: not computed
         )
     advantage, value_loss = make_advantage(cfg, model, intrinsic_value, bonus_transform)
     return loss, advantage, value_loss
@@ -151,34 +156,60 @@ def make_optimizer(cfg, params) -> torch.optim.Optimizer:
     return torch.optim.Adam(params, lr=cfg.optim.lr, eps=cfg.optim.eps, foreach=True)
 
 
-def make_minibatch_buffer(cfg, device=None) -> ReplayBuffer | None:
-    """PPO's collected batch, iterated in shuffled minibatches (one epoch per pass).
+class Minibatches:
+    """PPO's epochs of shuffled minibatches over the collected batch.
 
-    Its sampler draws the next permutation as an epoch ends: a checkpoint holds it.
-    The batch is stored on ``device`` (the learner's; default the CPU).
-    ``None`` for A2C, which takes one step on the whole batch.
+    The order is drawn by TorchRL's ``SamplerWithoutReplacement``, called on the
+    flat batch itself: the same permutations from the same random draws as a
+    ``ReplayBuffer`` of that sampler (it draws the next epoch's order as an epoch
+    ends, and its state, saved in the checkpoint, is the same), without copying
+    the batch into a storage and indexing it back out of it on every minibatch.
+    A minibatch holds what the update reads: the batch less its next states
+    (the advantages and value targets are computed already) and the collector's
+    bookkeeping, which every minibatch would otherwise index too.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> data = TensorDict({"x": torch.arange(8).reshape(2, 4)}, batch_size=[2, 4])
+        >>> batches = list(Minibatches(4)(data, epochs=2))
+        >>> [b.batch_size for b in batches]
+        [torch.Size([4]), torch.Size([4]), torch.Size([4]), torch.Size([4])]
+        >>> sorted(torch.cat([b["x"] for b in batches[:2]]).tolist())
+        [0, 1, 2, 3, 4, 5, 6, 7]
     """
+
+    def __init__(self, size: int):
+        self.size = size
+        self.sampler = SamplerWithoutReplacement()
+
+    #: What a minibatch leaves out.
+    UNUSED = ("next", "collector")
+
+    def __call__(self, data: TensorDictBase, epochs: int):
+        flat = data.exclude(*self.UNUSED).reshape(-1)
+        for _ in range(epochs):
+            self.sampler.ran_out = False
+            while not self.sampler.ran_out:
+                index, _ = self.sampler.sample(flat, self.size)
+                yield flat[index]
+
+
+def make_minibatches(cfg) -> Minibatches | None:
+    """PPO's minibatches (:class:`Minibatches`); ``None`` for A2C, which takes
+    one step on the whole batch."""
     if cfg.algo.name == "a2c":
         return None
-    return ReplayBuffer(
-        storage=LazyTensorStorage(
-            cfg.env.num_envs * cfg.collector.frames_per_env,
-            device="cpu" if device is None else device,
-        ),
-        sampler=SamplerWithoutReplacement(),
-        batch_size=cfg.loss.minibatch_size,
-    )
+    return Minibatches(cfg.loss.minibatch_size)
 
 
-def minibatches(data: TensorDictBase, buffer: ReplayBuffer | None, epochs: int):
+def minibatches(data: TensorDictBase, batches: Minibatches | None, epochs: int):
     """The batches of one update: the whole batch (A2C), or ``epochs`` passes of
     shuffled minibatches (PPO)."""
-    if buffer is None:
+    if batches is None:
         yield data
         return
-    buffer.extend(data.reshape(-1))
-    for _ in range(epochs):
-        yield from buffer
+    yield from batches(data, epochs)
 
 
 def standardize_advantage(data: TensorDictBase, key="advantage") -> TensorDictBase:
