@@ -337,3 +337,48 @@ def test_vae_noveld_novelty_is_the_elbo_or_the_kl_and_nothing_else():
         ValueError, match=r"novelty must be one of \('neg_elbo', 'kl'\)"
     ):
         VAENovelDTransform(vae, in_keys=["observation"], novelty="elbo")
+
+
+def test_a_trajectory_batch_scores_each_state_once_and_gives_the_same_bonus():
+    # On a batch with a time dim, s_t is s'_{t-1} within an episode: its novelty
+    # is read from the step before; only the first states and the reset states
+    # go through the model beside the s'. The bonus is the one of scoring every
+    # (s, s') pair, which the transform falls back to when the states differ.
+    from torchrl.envs import Compose, StepCounter
+
+    torch.manual_seed(0)
+    base = ContinuousActionVecMockEnv()
+    obs_dim = base.observation_spec["observation"].shape[-1]
+    vae = StateVAE.for_vector(obs_dim, latent_dim=4, hidden_dim=16)
+    bonus = VAENovelDTransform(vae, coef=0.1)
+    env = TransformedEnv(base, Compose(StepCounter(max_steps=4), bonus))
+    runs = [env.rollout(10, break_when_any_done=False) for _ in range(3)]
+    batch = torch.stack(runs).refine_names(None, "time")  # [3 envs, 10 steps]
+    assert batch["next", "done"].sum() == 6  # two resets in each env
+    rows = []
+    score = vae.novelty
+
+    def counting(*observations):
+        rows.append(observations[0][..., 0].numel())  # states scored
+        return score(*observations)
+
+    def every_pair(td, next_td, done, time_dim):
+        return bonus._novelty_gain(td, next_td)
+
+    bonus.reset_episodes()
+    vae.novelty = counting
+    once = bonus(batch.clone())["next", "intrinsic_reward"]
+    # the 30 s', then each env's first state and its two reset states
+    assert rows == [30 + 3 + 6]
+    bonus.reset_episodes()
+    bonus._novelty_gain_along = every_pair
+    assert torch.equal(once, bonus(batch.clone())["next", "intrinsic_reward"])
+    del bonus._novelty_gain_along
+    # a batch whose s_t is not its s'_{t-1} (rewritten between steps): every
+    # pair is scored
+    rows.clear()
+    changed = batch.clone()
+    changed["observation"] = changed["observation"] + 1.0
+    bonus.reset_episodes()
+    bonus(changed)
+    assert sum(rows) == 2 * 30

@@ -166,6 +166,54 @@ class NovelDTransform(IntrinsicRewardTransform):
     ) -> torch.Tensor:
         time_dim = self._require_time_dim(time_dim)
         done, visits, next_visits = self._inputs(tensordict, next_tensordict)
-        gain = self._novelty_gain(tensordict, next_tensordict)
+        gain = self._novelty_gain_along(tensordict, next_tensordict, done, time_dim)
         first = self.visits.walk(visits, next_visits, done, time_dim)
         return gain * first.to(gain.device, gain.dtype)
+
+    def _novelty_gain_along(
+        self,
+        tensordict: TensorDictBase,
+        next_tensordict: TensorDictBase,
+        done: torch.Tensor,
+        time_dim: int,
+    ) -> torch.Tensor:
+        """:meth:`_novelty_gain` of a trajectory batch, each state scored once.
+
+        ``s_t`` is ``s'_{t-1}`` but where ``t = 0`` or an episode ended at
+        ``t - 1``: its novelty is read from the previous step's ``s'`` (the
+        model scores each state on its own, so the value is the same), and only
+        the other states go through the model with the ``s'``. Where the
+        observations say otherwise (a transform that rewrites them between
+        steps), every state is scored, as on the env path.
+        """
+        obs = self._observations(tensordict, "the root tensordict (s_t)")
+        next_obs = self._observations(next_tensordict, "the 'next' tensordict")
+        dims = len(next_tensordict.batch_size)
+        time_dim = time_dim % dims
+        if any(o.shape != n.shape for o, n in zip(obs, next_obs, strict=True)):
+            return self._novelty_gain(tensordict, next_tensordict)
+        # carried[..., t]: s_t is s'_{t-1}
+        carried = torch.zeros_like(done).movedim(time_dim, -1)
+        carried[..., 1:] = ~done.movedim(time_dim, -1)[..., :-1]
+        carried = carried.movedim(-1, time_dim)
+
+        def previous(x: torch.Tensor) -> torch.Tensor:
+            # x at t - 1, along the time dim (row 0 is never read)
+            return x.roll(1, dims=time_dim)
+
+        if not all(
+            torch.equal(o[carried], previous(n)[carried])
+            for o, n in zip(obs, next_obs, strict=True)
+        ):
+            return self._novelty_gain(tensordict, next_tensordict)
+        fresh = [o[~carried] for o in obs]
+        scored = self.novelty(
+            *(
+                torch.cat([n.reshape(-1, *n.shape[dims:]), f])
+                for n, f in zip(next_obs, fresh, strict=True)
+            )
+        )
+        next_novelty = scored[: done.numel()].reshape(done.shape)
+        novelty = previous(next_novelty).clone()
+        novelty[~carried] = scored[done.numel() :]
+        return (next_novelty - self.alpha * novelty).clamp_min(0.0)
