@@ -252,6 +252,8 @@ BAD_VALUES = {
     "loss.entropy_coef=nan": "loss.entropy_coef must be a finite number >= 0, got nan.",
     "intrinsic.vae.novelty=foo": "intrinsic.vae.novelty must be one of 'neg_elbo', "
     "'kl', got 'foo'.",
+    # both recipes' bonus-model batch (MiniGrid's may be null: the whole batch)
+    "intrinsic.batch_size=0": "intrinsic.batch_size must be an integer > 0",
     "logger.backend=foo": "logger.backend must be one of 'csv', 'tensorboard', "
     "'wandb', 'mlflow', '', got 'foo'.",
     # DDPG's counterparts of MiniGrid's settings

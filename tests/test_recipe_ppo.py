@@ -121,3 +121,36 @@ def test_bad_config_fails_clearly_on_the_command_line(tmp_path):
     assert proc.returncode != 0
     assert "loss.minibatch_size must be an integer in [1, 128]" in proc.stderr
     assert not (tmp_path / "bad" / "checkpoint.torchrl").exists()
+
+
+def test_the_bonus_model_trains_on_batch_size_transitions_drawn_each_step():
+    # intrinsic.batch_size: each bonus-model step sees that many of the batch's
+    # transitions, a new draw each step; null: the whole batch, every step.
+    import torch
+    from tensordict import TensorDict
+
+    from common.minigrid import train_bonus_model
+
+    seen = []
+
+    class Loss(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.w = torch.nn.Parameter(torch.zeros(()))
+
+        def forward(self, td):
+            seen.append(td["i"].flatten().tolist())
+            return TensorDict({"loss_x": (self.w - td["i"].float().mean()) ** 2})
+
+    loss = Loss()
+    optim = torch.optim.SGD(loss.parameters(), lr=0.1)
+    data = TensorDict({"i": torch.arange(32).reshape(4, 8)}, batch_size=[4, 8])
+    torch.manual_seed(0)
+    train_bonus_model(loss, optim, data, steps=3, batch_size=8)
+    assert [len(s) for s in seen] == [8, 8, 8]
+    assert all(len(set(s)) == 8 for s in seen)  # without replacement
+    assert seen[0] != seen[1] != seen[2]  # a new draw each step
+    assert loss.w.item() != 0.0  # and it trained
+    seen.clear()
+    train_bonus_model(loss, optim, data, steps=2)
+    assert [sorted(s) for s in seen] == [list(range(32))] * 2

@@ -405,6 +405,8 @@ class MiniGridIntrinsicConfig(IntrinsicConfig):
     """With init_from: keep training the bonus model (false: frozen)."""
     update_steps: int = required(NON_NEGATIVE)
     """Bonus-model gradient steps per training update; >= 0."""
+    batch_size: int | None = required(POSITIVE)
+    """Transitions per bonus-model step, drawn at random from the batch; null: all."""
     vae: MiniGridVAEConfig = section(MiniGridVAEConfig)
     icm: ICMConfig = section(ICMConfig)
     rnd: RNDConfig = section(RNDConfig)

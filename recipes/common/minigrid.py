@@ -320,12 +320,17 @@ def bonus_update_steps(cfg, iteration: int) -> int:
     return icfg.update_steps
 
 
-def train_bonus_model(bonus_loss, optim, data, steps: int, env_side=None):
+def train_bonus_model(
+    bonus_loss, optim, data, steps: int, env_side=None, batch_size: int | None = None
+):
     """``steps`` gradient steps of the bonus model on the states of ``data``.
 
-    Each step minimises the sum of the ``loss_*`` entries of ``bonus_loss(data)``.
-    With RND (``env_side``, TorchRL's ``RNDTransform``), ``RNDLoss`` normalises
-    the states with the env-side transform's running statistics.
+    Each step minimises the sum of the ``loss_*`` entries of ``bonus_loss(data)``,
+    or with ``batch_size`` of ``bonus_loss`` on that many of the batch's
+    transitions, drawn without replacement (torch's global generator, which the
+    checkpoint holds) for each step. With RND (``env_side``, TorchRL's
+    ``RNDTransform``), ``RNDLoss`` normalises the states with the env-side
+    transform's running statistics.
 
     Returns:
         The loss TensorDict of the last step (``None`` without a bonus model or
@@ -336,7 +341,10 @@ def train_bonus_model(bonus_loss, optim, data, steps: int, env_side=None):
     if env_side is not None:
         bonus_loss.obs_rms = env_side.obs_rms
     bonus_td = None
+    flat = data.reshape(-1)
     for _ in range(steps):
+        if batch_size is not None and batch_size < flat.numel():
+            data = flat[torch.randperm(flat.numel(), device=flat.device)[:batch_size]]
         bonus_td = bonus_loss(data)
         bonus_total = sum(v for k, v in bonus_td.items() if k.startswith("loss_"))
         optim.zero_grad()

@@ -273,14 +273,24 @@ def train(cfg, run: TrainingRun, t: Training) -> tuple[int, float]:
             # trains first (step 5 comes before step 2).
             t.bonus_transform.snapshot()
             bonus_td = train_bonus_model(
-                t.bonus_loss, t.bonus_optim, data, bonus_steps, t.env_side
+                t.bonus_loss,
+                t.bonus_optim,
+                data,
+                bonus_steps,
+                t.env_side,
+                cfg.intrinsic.batch_size,
             )
         data = bonus_and_advantage(cfg, t, data)  # steps 2 and 3
         logs = learner_update(cfg, run, t, data, frames)  # step 4
         # Step 5: train the bonus model on the states of this rollout.
         if variant != "info_gain":
             bonus_td = train_bonus_model(
-                t.bonus_loss, t.bonus_optim, data, bonus_steps, t.env_side
+                t.bonus_loss,
+                t.bonus_optim,
+                data,
+                bonus_steps,
+                t.env_side,
+                cfg.intrinsic.batch_size,
             )
         if variant == "lagged_kl" and iteration % cfg.intrinsic.vae.lag_updates == 0:
             t.bonus_transform.snapshot()
