@@ -960,78 +960,27 @@ def plot_heatmaps(
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.collections import PolyCollection
-    from matplotlib.colors import Normalize
-    from matplotlib.lines import Line2D
-    from matplotlib.patches import Patch, Rectangle
 
     if reduce not in ("max", "mean"):
         raise ValueError(f"reduce must be 'max' or 'mean', got {reduce!r}.")
     if len(titles) != len(grids):
         raise ValueError(f"{len(grids)} grids but {len(titles)} titles.")
-    # Transparent NaN: cells the agent cannot reach keep the rendering.
-    cmap = matplotlib.colormaps["viridis"].with_extremes(bad=(0.0, 0.0, 0.0, 0.0))
-
-    def reduced(grid):
-        if not np.isfinite(grid).any():
-            return np.full(grid.shape[:2], np.nan)
-        with warnings.catch_warnings():
-            # unreachable cells are all-NaN: they stay NaN (uncoloured)
-            warnings.simplefilter("ignore", RuntimeWarning)
-            return np.nanmax(grid, -1) if reduce == "max" else np.nanmean(grid, -1)
-
-    def limits(values):
-        finite = values[np.isfinite(values)]
-        if finite.size == 0:
-            return 0.0, 1.0
-        low, high = float(finite.min()), float(finite.max())
-        return low, (high if high > low else low + 1e-6)
-
-    panels = [g if directions else reduced(g) for g in grids]
-    shared = limits(np.concatenate([p.ravel() for p in panels])) if panels else None
-    height, width = grids[0].shape[:2] if grids else background.shape[:2]
-    aspect = height / width
-    fig, axes = plt.subplots(
-        1, len(grids), figsize=(5.2 * len(grids), 4.6 * aspect + 0.8), squeeze=False
-    )
     if paths is not None and len(paths) != len(grids):
         raise ValueError(f"{len(grids)} grids but {len(paths)} paths.")
+    panels = [g if directions else _reduced(g, reduce) for g in grids]
+    shared = _limits(np.concatenate([p.ravel() for p in panels])) if panels else None
+    height, width = grids[0].shape[:2] if grids else background.shape[:2]
+    fig, axes = plt.subplots(
+        1,
+        len(grids),
+        figsize=(5.2 * len(grids), 4.6 * height / width + 0.8),
+        squeeze=False,
+    )
     for i, (ax, panel, title) in enumerate(zip(axes[0], panels, titles)):
-        norm = Normalize(*(shared if shared_scale else limits(panel)))
-        ax.imshow(background, extent=(0, width, height, 0), interpolation="nearest")
-        if directions:
-            polygons, values = _triangles(panel)
-            artist = PolyCollection(
-                polygons, array=values, cmap=cmap, norm=norm, alpha=alpha
-            )
-            artist.set_edgecolor("none")
-            ax.add_collection(artist)
-        else:
-            artist = ax.imshow(
-                np.ma.masked_invalid(panel),
-                extent=(0, width, height, 0),
-                cmap=cmap,
-                norm=norm,
-                alpha=alpha,
-                interpolation="nearest",
-            )
-        ax.set_xlim(0, width)
-        ax.set_ylim(height, 0)
-        ax.set_xticks([])
-        ax.set_yticks([])
+        limits = shared if shared_scale else _limits(panel)
+        artist = _draw_panel(ax, panel, background, limits, directions, alpha)
         for kind, cells in (outlines or {}).items():
-            colour = _OUTLINE_COLOURS.get(kind, "white")
-            for x, y in cells:
-                ax.add_patch(
-                    Rectangle(
-                        (x + 0.06, y + 0.06),
-                        0.88,
-                        0.88,
-                        fill=False,
-                        edgecolor=colour,
-                        linewidth=1.6,
-                    )
-                )
+            _outline(ax, cells, _OUTLINE_COLOURS.get(kind, "white"))
         for x, y in paths[i] if paths is not None else ():
             ax.plot(x + 0.5, y + 0.5, "o", color="red", markersize=5)
         ax.set_title(title, fontsize=10)
@@ -1041,6 +990,90 @@ def plot_heatmaps(
         )
     if suptitle:
         fig.suptitle(suptitle, fontsize=11)
+    handles = _legend_handles(outlines, paths)
+    if handles:
+        fig.legend(handles=handles, loc="lower center", ncol=len(handles))
+    fig.tight_layout(rect=(0, 0.05 if handles else 0, 1, 1))
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def _reduced(grid: np.ndarray, reduce: str) -> np.ndarray:
+    """A ``[H, W, 4]`` grid's max or mean over directions (NaN where unreachable)."""
+    if not np.isfinite(grid).any():
+        return np.full(grid.shape[:2], np.nan)
+    with warnings.catch_warnings():
+        # unreachable cells are all-NaN: they stay NaN (uncoloured)
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmax(grid, -1) if reduce == "max" else np.nanmean(grid, -1)
+
+
+def _limits(values: np.ndarray) -> tuple[float, float]:
+    """The colour scale of the finite values (a non-empty range)."""
+    finite = values[np.isfinite(values)]
+    if finite.size == 0:
+        return 0.0, 1.0
+    low, high = float(finite.min()), float(finite.max())
+    return low, (high if high > low else low + 1e-6)
+
+
+def _draw_panel(ax, panel, background, limits, directions: bool, alpha: float):
+    """One panel's overlay on the layout; returns the artist its colour bar reads."""
+    import matplotlib
+    from matplotlib.collections import PolyCollection
+    from matplotlib.colors import Normalize
+
+    # Transparent NaN: cells the agent cannot reach keep the rendering.
+    cmap = matplotlib.colormaps["viridis"].with_extremes(bad=(0.0, 0.0, 0.0, 0.0))
+    norm = Normalize(*limits)
+    height, width = panel.shape[:2]
+    ax.imshow(background, extent=(0, width, height, 0), interpolation="nearest")
+    if directions:
+        polygons, values = _triangles(panel)
+        artist = PolyCollection(
+            polygons, array=values, cmap=cmap, norm=norm, alpha=alpha
+        )
+        artist.set_edgecolor("none")
+        ax.add_collection(artist)
+    else:
+        artist = ax.imshow(
+            np.ma.masked_invalid(panel),
+            extent=(0, width, height, 0),
+            cmap=cmap,
+            norm=norm,
+            alpha=alpha,
+            interpolation="nearest",
+        )
+    ax.set_xlim(0, width)
+    ax.set_ylim(height, 0)
+    ax.set_xticks([])
+    ax.set_yticks([])
+    return artist
+
+
+def _outline(ax, cells, colour) -> None:
+    from matplotlib.patches import Rectangle
+
+    for x, y in cells:
+        ax.add_patch(
+            Rectangle(
+                (x + 0.06, y + 0.06),
+                0.88,
+                0.88,
+                fill=False,
+                edgecolor=colour,
+                linewidth=1.6,
+            )
+        )
+
+
+def _legend_handles(outlines, paths) -> list:
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
     handles = [
         Patch(fill=False, edgecolor=_OUTLINE_COLOURS.get(kind, "white"), label=kind)
         for kind, cells in (outlines or {}).items()
@@ -1050,14 +1083,7 @@ def plot_heatmaps(
         handles.append(
             Line2D([], [], marker="o", color="red", linestyle="", label="memory")
         )
-    if handles:
-        fig.legend(handles=handles, loc="lower center", ncol=len(handles))
-    fig.tight_layout(rect=(0, 0.05 if handles else 0, 1, 1))
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return handles
 
 
 # ------------------------------------------------------------------------- CLI
@@ -1116,6 +1142,12 @@ def _parser() -> argparse.ArgumentParser:
         help="recompute a --summary from the rows per run and layout it wrote "
         "(no checkpoint needed); --out defaults to the summary beside them",
     )
+    _add_drawing_arguments(parser)
+    return parser
+
+
+def _add_drawing_arguments(parser: argparse.ArgumentParser) -> None:
+    """What the layout and the picture look like."""
     parser.add_argument(
         "--open-doors",
         action="store_true",
@@ -1144,7 +1176,6 @@ def _parser() -> argparse.ArgumentParser:
         "several values draw one panel per checkpoint and value",
     )
     parser.add_argument("--tile-size", type=int, default=32)
-    return parser
 
 
 def _format(value: float) -> str:
@@ -1171,27 +1202,45 @@ def main(argv: Sequence[str] | None = None) -> Path:
         return _summary_main(args, sources)
     if args.layout_seeds is not None:
         _parser().error("--layout-seeds goes with --summary (a picture is one layout)")
+    return _picture_main(args, sources)
+
+
+def _picture_main(args, sources: Sequence[str]) -> Path:
+    """One layout's heatmap per checkpoint (and memory), its PNG and CSV."""
     loaded, env_name = _load_sources(sources, args.env)
     env = make_layout_env(env_name, args.layout_seed)
     memories = _memories(env, args.memory_steps)  # (steps, memory or None, cells)
-    has_memory = any(m[0] for m in memories)
-    groups = _groups(env, args.open_doors)
-
     variants = [
         config["intrinsic"]["vae"].get("variant", "kl") for *_, config, _ in loaded
     ]
-    one_variant = len(set(variants)) == 1
-    grids, titles, rows = [], [], []
     panels = [
         (*checkpoint, variant, memory)
         for checkpoint, variant in zip(loaded, variants)
         for memory in memories
     ]
+    grids, titles, rows = _panel_grids(args, env, env_name, panels, len(memories))
+    suptitle, unit = _picture_labels(args, env_name, variants, memories)
+    png = _draw_picture(args, env, grids, titles, suptitle, unit, panels, memories)
+    csv_path = png.with_suffix(".csv")
+    with open(csv_path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    _print_rows(rows, suptitle, unit)
+    print(f"Heatmap: {png}\nCategory means: {csv_path}")
+    return png
+
+
+def _panel_grids(args, env, env_name: str, panels, n_memories: int):
+    """Each panel's bonus grid, its title, and its rows of category means."""
+    groups = _groups(env, args.open_doors)
+    one_variant = len({panel[4] for panel in panels}) == 1
+    grids, titles, rows = [], [], []
     for src, transform, _, frames, variant, (steps, memory, _) in panels:
         grid = bonus_grid(transform, env, open_doors=args.open_doors, memory=memory)
         grids.append(grid)
         title = f"{frames:,} frames" if one_variant else f"{variant}, {frames:,} frames"
-        if len(memories) > 1:
+        if n_memories > 1:
             title += f", memory {steps} steps"
         titles.append(title)
         for name, stats in category_means(grid, groups).items():
@@ -1208,34 +1257,43 @@ def main(argv: Sequence[str] | None = None) -> Path:
                     **stats,
                 }
             )
+    return grids, titles, rows
+
+
+def _picture_labels(args, env_name: str, variants, memories) -> tuple[str, str]:
+    """The figure's title and the bonus's unit."""
+    one_variant = len(set(variants)) == 1
     doors = "doors open" if args.open_doors else "doors as generated"
     if any(v == "elliptical" for v in variants):
         lengths = "/".join(str(m[0]) for m in memories)
         doors += (
             f", episode memory: the first {lengths} steps of the shortest solution"
-            if has_memory
+            if any(m[0] for m in memories)
             else ", empty episode memory"
         )
     bonus = f"VAE bonus {variants[0]}, " if one_variant else ""
-    suptitle = (
-        f"{env_name}, layout seed {args.layout_seed}\n"
-        f"{bonus}{doors}, {'per direction' if args.directions else args.reduce + ' over directions'}"
-    )
+    over = "per direction" if args.directions else args.reduce + " over directions"
+    suptitle = f"{env_name}, layout seed {args.layout_seed}\n{bonus}{doors}, {over}"
     unit = "nats"
     if "elliptical" in variants:
         # phi^T C^-1 phi has no unit (times the KL's nats with global_bonus="kl")
         unit = "phi'C^-1 phi" if one_variant else "nats; elliptical: phi'C^-1 phi"
+    return suptitle, unit
+
+
+def _draw_picture(args, env, grids, titles, suptitle, unit, panels, memories) -> Path:
+    """The heatmaps over the layout's part of the grid (:func:`plot_heatmaps`)."""
     background = render_layout(
         env, open_doors=args.open_doors, tile_size=args.tile_size
     )
-    # Only the part of the grid the layout occupies.
     y0, y1, x0, x1 = _layout_box(env)
     t = args.tile_size
     outlines = {
         kind: [(x - x0, y - y0) for x, y in _object_cells(env, kind)]
         for kind in ("door", "goal")
     }
-    png = plot_heatmaps(
+    has_memory = any(m[0] for m in memories)
+    return plot_heatmaps(
         [grid[y0:y1, x0:x1] for grid in grids],
         background[y0 * t : y1 * t, x0 * t : x1 * t],
         args.out,
@@ -1250,12 +1308,9 @@ def main(argv: Sequence[str] | None = None) -> Path:
         if has_memory
         else None,
     )
-    csv_path = png.with_suffix(".csv")
-    with open(csv_path, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
 
+
+def _print_rows(rows, suptitle: str, unit: str) -> None:
     print(
         suptitle.replace("\n", ", ")
         + f": mean raw bonus ({unit}) by category of cells (max: mean of each cell's "
@@ -1271,8 +1326,6 @@ def main(argv: Sequence[str] | None = None) -> Path:
             f"{row['category']:<15} {row['unit']:<11} {row['count']:>5} "
             f"{_format(row['mean_bonus']):>8} {_format(row['mean_cell_max']):>8}"
         )
-    print(f"Heatmap: {png}\nCategory means: {csv_path}")
-    return png
 
 
 def summary_report(summary):
