@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 from pathlib import Path
 
 import gymnasium as gym
@@ -32,12 +33,10 @@ from torchrl_surprise.envs.envpool import (
     EnvPoolMiniGridEnv,
     minigrid_env_from_envpool_state,
 )
-from torchrl_surprise.envs.oracle import (
-    oracle_returns,
-    oracle_row,
-    solve_minigrid,
-    write_oracle_csv,
-)
+from torchrl_surprise.envs.oracle import oracle_returns, oracle_row, solve_minigrid
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "recipes"))
+from results.oracle import write_oracle_csv  # noqa: E402  (the tables' CSV writer)
 
 TASKS = (
     "MiniGrid-MultiRoom-N3-S4-v0",

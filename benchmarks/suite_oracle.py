@@ -26,12 +26,9 @@ from pathlib import Path
 
 from envpool_oracle import envpool_solutions  # benchmarks/, beside this script
 
-from torchrl_surprise.envs.oracle import (
-    format_oracle_table,
-    oracle_returns,
-    oracle_row,
-    write_oracle_csv,
-)
+# recipes/results, which importing envpool_oracle put on sys.path
+from results.oracle import format_oracle_table, write_oracle_csv
+from torchrl_surprise.envs.oracle import oracle_returns, oracle_row
 
 ENVPOOL_SUFFIX = "@envpool"  # recipes.results.aggregate.ENVPOOL_SUFFIX
 

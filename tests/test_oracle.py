@@ -18,12 +18,12 @@ from minigrid.core.world_object import Ball, Box, Door, Floor, Goal, Key, Lava, 
 from minigrid.envs.keycorridor import KeyCorridorEnv
 from minigrid.minigrid_env import MiniGridEnv
 
+from results.oracle import main  # the tables' command (recipes/results)
 from torchrl_surprise.envs import MULTIROOM_N3_S4, MULTIROOM_N4_S4
 from torchrl_surprise.envs.oracle import (
     NOISY_ORACLE_CSV_COLUMNS,
     ORACLE_CSV_COLUMNS,
     _noise_state_key,
-    main,
     optimal_returns_under_action_noise,
     oracle_returns,
     oracle_table,

@@ -60,7 +60,7 @@ first episode ended) are dropped. A run that stopped early is kept up to where i
 got and marked unfinished.
 
 **Normalisation.** With ``--oracle`` (a CSV with columns ``env`` and
-``mean_return``, such as :mod:`torchrl_surprise.envs.oracle` writes), the episode
+``mean_return``, such as ``recipes/results/oracle.py`` writes), the episode
 returns of a task are divided by its oracle mean return; tasks absent from the
 file (MuJoCo) stay unnormalised, which the ``normalized`` column and the command's
 output say.
@@ -1557,8 +1557,8 @@ def aggregate(
 
 
 ORACLE_DIR = Path("docs/results/oracle")
-"""The oracle tables: ``oracle_returns.csv`` (``python -m
-torchrl_surprise.envs.oracle``, minigrid's layouts), ``envpool_oracle_returns.csv``
+"""The oracle tables: ``oracle_returns.csv`` (``recipes/results/oracle.py``,
+minigrid's layouts), ``envpool_oracle_returns.csv``
 (``benchmarks/envpool_oracle.py``, envpool's layouts) and the suite's
 (``benchmarks/suite_oracle.py``)."""
 

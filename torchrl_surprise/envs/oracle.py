@@ -14,21 +14,15 @@ task's object (``env.obj``). The oracle sees the whole grid; the agent sees a 7x
 egocentric view, so the agent's best achievable return is lower.
 
 :func:`oracle_returns` solves an env id for a list of seeds, :func:`oracle_table`
-summarises several ids (one row each, the columns of :data:`ORACLE_CSV_COLUMNS`),
-and the command line writes that table as a CSV::
-
-    python -m torchrl_surprise.envs.oracle \\
-        --envs MiniGrid-MultiRoom-N3-S4-v0 MiniGrid-DoorKey-5x5-v0 --seeds 1000 \\
-        --out docs/results/oracle/oracle_returns.csv
+summarises several ids (one row each, the columns of :data:`ORACLE_CSV_COLUMNS`);
+the repository's ``recipes/results/oracle.py`` writes such tables as CSVs (the
+committed ``docs/results/oracle/``).
 
 Under action noise (an executed action replaced by a random one with probability
 ``p``, as :class:`~torchrl_surprise.transforms.StochasticityTransform` does) no
 policy keeps the oracle's return; :func:`optimal_returns_under_action_noise` gives
-the best expected return there, exactly, and ``--action-noise`` tabulates it
-(:func:`noisy_oracle_table`)::
-
-    python -m torchrl_surprise.envs.oracle --envs MiniGrid-MultiRoom-N3-S4-v0 \\
-        --seeds 200 --action-noise 0.05 0.1 0.2 --out noisy_oracle.csv
+the best expected return there, exactly, and :func:`noisy_oracle_table`
+tabulates it.
 
 Layouts may hold walls, floors, doors (open, closed or locked), keys, balls, boxes
 (toggled, a box is replaced by what it holds), goals and lava. Anything else (a
@@ -41,16 +35,12 @@ millisecond to about a second (``benchmarks/suite_oracle.py``).
 
 from __future__ import annotations
 
-import argparse
 import copy
-import csv
 import heapq
 import itertools
 import statistics
-import sys
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -68,7 +58,6 @@ __all__ = [
     "NOISY_ORACLE_CSV_COLUMNS",
     "ORACLE_CSV_COLUMNS",
     "OracleSolution",
-    "format_oracle_table",
     "oracle_returns",
     "oracle_row",
     "noisy_oracle_table",
@@ -76,7 +65,6 @@ __all__ = [
     "oracle_table",
     "return_to_steps",
     "solve_minigrid",
-    "write_oracle_csv",
 ]
 
 ORACLE_CSV_COLUMNS: tuple[str, ...] = (
@@ -1035,98 +1023,3 @@ def oracle_table(env_ids: Sequence[str], num_seeds: int) -> list[dict[str, Any]]
         oracle_row(env_id, oracle_returns(env_id, range(num_seeds)))
         for env_id in env_ids
     ]
-
-
-def _format_value(value: Any) -> str:
-    return f"{value:.4f}" if isinstance(value, float) else str(value)
-
-
-def write_oracle_csv(
-    rows: Sequence[dict[str, Any]],
-    path: str | Path,
-    columns: Sequence[str] = ORACLE_CSV_COLUMNS,
-) -> Path:
-    """Writes :func:`oracle_table` rows as a CSV (floats with 4 decimals).
-
-    ``columns``: :data:`NOISY_ORACLE_CSV_COLUMNS` for :func:`noisy_oracle_table`
-    rows.
-
-    Returns:
-        The path written (parent folders are created).
-
-    Examples:
-        >>> import tempfile
-        >>> rows = oracle_table(["MiniGrid-DoorKey-5x5-v0"], 2)
-        >>> with tempfile.TemporaryDirectory() as folder:
-        ...     path = write_oracle_csv(rows, Path(folder) / "oracle.csv")
-        ...     print(path.read_text().splitlines()[0])
-        env,seeds,mean_return,std_return,mean_steps,min_steps,max_steps,max_episode_steps,solved_fraction,return_at_0.8_steps
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="") as file:
-        writer = csv.DictWriter(file, fieldnames=list(columns))
-        writer.writeheader()
-        for row in rows:
-            writer.writerow({key: _format_value(row[key]) for key in columns})
-    return path
-
-
-def format_oracle_table(
-    rows: Sequence[dict[str, Any]], columns: Sequence[str] = ORACLE_CSV_COLUMNS
-) -> str:
-    """A fixed-width text table of :func:`oracle_table` rows, for a terminal.
-
-    Examples:
-        >>> rows = oracle_table(["MiniGrid-DoorKey-5x5-v0"], 2)
-        >>> print(format_oracle_table(rows).splitlines()[0].split()[:3])
-        ['env', 'seeds', 'mean_return']
-    """
-    cells = [list(columns)]
-    cells += [[_format_value(row[key]) for key in columns] for row in rows]
-    widths = [max(len(line[i]) for line in cells) for i in range(len(cells[0]))]
-    lines = [
-        "  ".join(
-            text.ljust(width) if i == 0 else text.rjust(width)
-            for i, (text, width) in enumerate(zip(line, widths))
-        )
-        for line in cells
-    ]
-    return "\n".join(lines)
-
-
-def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
-    """Command line: solve each id for seeds ``0 .. N-1``, print and write the table."""
-    parser = argparse.ArgumentParser(
-        prog="python -m torchrl_surprise.envs.oracle",
-        description="Shortest-solution (oracle) returns of MiniGrid tasks.",
-    )
-    parser.add_argument("--envs", nargs="+", required=True, help="MiniGrid ids")
-    parser.add_argument(
-        "--seeds", type=int, default=1000, help="seeds 0..N-1 per id (default 1000)"
-    )
-    parser.add_argument("--out", type=Path, default=None, help="CSV path to write")
-    parser.add_argument(
-        "--action-noise",
-        type=float,
-        nargs="+",
-        default=None,
-        metavar="P",
-        help="instead, the best expected return when an action is replaced by a "
-        "random one with probability P (one row per id and P; "
-        "optimal_returns_under_action_noise)",
-    )
-    args = parser.parse_args(argv)
-    if args.action_noise is None:
-        rows, columns = oracle_table(args.envs, args.seeds), ORACLE_CSV_COLUMNS
-    else:
-        rows = noisy_oracle_table(args.envs, args.seeds, args.action_noise)
-        columns = NOISY_ORACLE_CSV_COLUMNS
-    print(format_oracle_table(rows, columns))
-    if args.out is not None:
-        print(f"wrote {write_oracle_csv(rows, args.out, columns)}")
-    return rows
-
-
-if __name__ == "__main__":
-    main(sys.argv[1:])
