@@ -566,93 +566,93 @@ def test_a_threshold_counts_only_once_the_episode_window_is_full():
     assert table["frames"].tolist() == [1000, 1000]
 
 
-def test_documented_results_show_a_recipe_its_own_learners_results(tmp_path):
-    from common.minigrid import documented_results
+_SUMMARY_HEADER = (
+    "task,setting,oracle_return,budget,seeds,train_return_iqm,train_return_ci_low,"
+    "train_return_ci_high\n"
+)
 
-    task = "MiniGrid-MultiRoom-N3-S4-v0"
-    row = "{},{},500000,5,0.9,0.8,1.0,1.0\n"
-    for name, recipe, setting in [
-        ("n3s4", "a2c_minigrid", "vae"),
-        ("ppo_n3s4", "ppo_minigrid", "none"),
-    ]:
-        out = tmp_path / name
-        out.mkdir()
-        (out / "summary.csv").write_text(
-            "task,setting,budget,seeds,train_return_iqm,train_return_ci_low,"
-            "train_return_ci_high,train_success_iqm\n" + row.format(task, setting)
+
+def _committed(tmp_path, name, recipe, rows, task="MiniGrid-MultiRoom-N3-S4-v0"):
+    # a committed experiment: its summary rows (setting, IQM) and its runs' recipe
+    (tmp_path / name).mkdir()
+    (tmp_path / name / "summary.csv").write_text(
+        _SUMMARY_HEADER
+        + "".join(
+            f'{task},"{s}",0.8,500000,5,{v},{v - 0.1},{v + 0.05}\n' for s, v in rows
         )
-        (out / "runs_meta.csv").write_text(
-            f'run_dir\n"runs/{recipe}/{name}/+setting={setting},seed=0"\n'
-        )
-    a2c = documented_results(task, 500_000, tmp_path, recipe="a2c_minigrid")
-    ppo = documented_results(task, 500_000, tmp_path, recipe="ppo_minigrid")
-    assert len(a2c) == 1 and "vae" in a2c[0] and "(n3s4)" in a2c[0]
-    assert len(ppo) == 1 and "none" in ppo[0] and "(ppo_n3s4)" in ppo[0]
-    assert len(documented_results(task, 500_000, tmp_path)) == 2
-    assert documented_results(task, 1_000_000, tmp_path, recipe="a2c_minigrid") == []
-
-
-def test_documented_results_show_each_setting_once_at_the_runs_noise_level(tmp_path):
-    from common.minigrid import documented_results
-
-    task = "MiniGrid-MultiRoom-N3-S4-v0"
-    header = (
-        "task,setting,budget,seeds,train_return_iqm,train_return_ci_low,"
-        "train_return_ci_high,train_success_iqm\n"
     )
-    experiments = {
-        "a_main": [("icm", 0.36)],
-        "b_cost": [("icm", 0.36), ("icm_every4", 0.38)],
-        "c_noise": [("icm", 0.34), ("icm,env.stochasticity=2", 0.27)],
-    }
-    for name, rows in experiments.items():
-        (tmp_path / name).mkdir()
-        (tmp_path / name / "summary.csv").write_text(
-            header + "".join(f'{task},"{s}",500000,5,{v},0,1,1\n' for s, v in rows)
-        )
-    noise_free = documented_results(task, 500_000, tmp_path)
-    assert [line.split()[0] for line in noise_free] == ["icm", "icm_every4"]
-    assert "0.36" in noise_free[0] and "(a_main)" in noise_free[0]
-    level2 = documented_results(task, 500_000, tmp_path, stochasticity=2)
-    assert len(level2) == 1 and "icm,env.stochasticity=2" in level2[0]
-    assert documented_results(task, 500_000, tmp_path, stochasticity=3) == []
+    (tmp_path / name / "runs_meta.csv").write_text(
+        f'run_dir\n"runs/{recipe}/{name}/+setting={rows[0][0]},seed=0"\n'
+    )
 
 
-def test_a_run_on_envpool_is_shown_envpools_results_then_minigrids(tmp_path):
-    from common.minigrid import documented_results_message
+def test_a_run_is_shown_beside_the_plain_learner_and_the_best_setting(tmp_path):
+    from common.minigrid import measured_comparison
 
     task = "MiniGrid-MultiRoom-N3-S4-v0"
-    header = (
-        "task,setting,budget,seeds,train_return_iqm,train_return_ci_low,"
-        "train_return_ci_high,train_success_iqm\n"
+    _committed(tmp_path, "a_small", "a2c_minigrid", [("icm", 0.36)])
+    _committed(
+        tmp_path,
+        "b_main",
+        "a2c_minigrid",
+        [("none", 0.0), ("vae_elliptical", 0.94), ("icm", 0.36)],
     )
-    for name, label, value in [("n3s4", task, 0.91), ("pool", f"{task}@envpool", 0.93)]:
-        (tmp_path / name).mkdir()
-        (tmp_path / name / "summary.csv").write_text(
-            header + f"{label},vae_elliptical,500000,5,{value},0,1,1\n"
-        )
-    on_envpool = documented_results_message(
+    _committed(tmp_path, "c_ppo", "ppo_minigrid", [("none", 0.99), ("rnd", 1.0)])
+    lines = measured_comparison(
+        task, 500_000, tmp_path, "a2c_minigrid", run_return=0.76
+    ).splitlines()
+    # one summary, the one with the most settings of the run's own learner
+    assert "b_main" in lines[0] and "return / oracle" in lines[0]
+    assert lines[1].split() == ["this", "run", "0.95"]  # 0.76 / 0.8
+    assert lines[2].split()[:4] == ["none", "(plain", "learner)", "0.00"]
+    assert lines[3].split()[:3] == ["vae_elliptical", "(best)", "0.94"]
+    assert "[0.84, 0.99], 5 seeds" in lines[3]
+    assert len(lines) == 4
+    ppo = measured_comparison(task, 500_000, tmp_path, "ppo_minigrid").splitlines()
+    assert "c_ppo" in ppo[0] and ppo[2].split()[:3] == ["rnd", "(best)", "1.00"]
+    # another budget, another noise level, a task not measured: nothing
+    assert measured_comparison(task, 1_000_000, tmp_path, "a2c_minigrid") == ""
+    assert measured_comparison(task, 500_000, tmp_path, "a2c_minigrid", 2) == ""
+    assert measured_comparison("MiniGrid-Empty-5x5-v0", 500_000, tmp_path, "a2c") == ""
+
+
+def test_a_run_is_compared_at_its_noise_level_and_on_its_backend_first(tmp_path):
+    from common.minigrid import measured_comparison
+
+    task = "MiniGrid-MultiRoom-N3-S4-v0"
+    _committed(
+        tmp_path,
+        "noise",
+        "a2c_minigrid",
+        [
+            ("icm", 0.34),
+            ("icm,env.stochasticity=2", 0.27),
+            ("none,env.stochasticity=2", 0.0),
+        ],
+    )
+    level2 = measured_comparison(task, 500_000, tmp_path, "a2c_minigrid", 2)
+    assert "none,env.stochasticity=2 (plain learner)" in level2
+    assert "icm,env.stochasticity=2 (best)" in level2 and "0.34" not in level2
+    # a run on envpool: envpool's layouts' results, else minigrid's envs'
+    on_envpool = measured_comparison(
         f"{task}@envpool", 500_000, tmp_path, "a2c_minigrid"
     )
-    # no runs_meta.csv: no experiment is the recipe's own
-    assert on_envpool == ""
-    for name in ("n3s4", "pool"):
-        (tmp_path / name / "runs_meta.csv").write_text(
-            f'run_dir\n"runs/a2c_minigrid/{name}/+setting=vae_elliptical,seed=0"\n'
-        )
-    lines = documented_results_message(
+    assert on_envpool.startswith(f"Measured on {task} at") and "noise" in on_envpool
+    _committed(
+        tmp_path, "pool", "a2c_minigrid", [("vae", 0.93)], task=f"{task}@envpool"
+    )
+    on_envpool = measured_comparison(
         f"{task}@envpool", 500_000, tmp_path, "a2c_minigrid"
-    ).splitlines()
-    assert lines[0].startswith(f"Measured on {task} (envpool's envs)")
-    assert "recipes/minigrid/setting/<label>.yaml" in lines[0]
-    assert "0.93" in lines[1] and "(pool)" in lines[1]
-    assert lines[2].startswith(f"Measured on {task} (minigrid's envs)")
-    assert "0.91" in lines[3] and "(n3s4)" in lines[3]
-    # a run on minigrid's envs is shown minigrid's results only
-    lines = documented_results_message(
-        task, 500_000, tmp_path, "a2c_minigrid"
-    ).splitlines()
-    assert len(lines) == 2 and "(minigrid's envs)" in lines[0] and "(n3s4)" in lines[1]
+    )
+    assert on_envpool.startswith(f"Measured on {task}@envpool") and "pool" in on_envpool
+    # an experiment whose runs' recipe is unknown (no runs_meta.csv) is not shown
+    (tmp_path / "pool" / "runs_meta.csv").unlink()
+    assert (
+        "@envpool"
+        not in measured_comparison(f"{task}@envpool", 500_000, tmp_path, "a2c_minigrid")
+        .splitlines()[0]
+        .split(" at ")[0]
+    )
 
 
 def test_all_regenerates_every_experiment_of_a_results_dir(sweep, tmp_path):

@@ -43,8 +43,8 @@ from torchrl_surprise.transforms.stochasticity import StochasticityTransform
 __all__ = [
     "MiniGridConvTrunk",
     "bonus_update_steps",
-    "documented_results",
-    "documented_results_message",
+    "committed_summary",
+    "measured_comparison",
     "init_rl_starter",
     "load_bonus_model",
     "make_actor_critic",
@@ -483,95 +483,92 @@ def oracle_optimum(env_name: str, seed: int, stochasticity: int = 0):
     return label, value
 
 
-def documented_results_message(
+def measured_comparison(
     task: str,
     frames: int,
     results_dir: str | os.PathLike,
     recipe: str,
     stochasticity: int = 0,
+    run_return: float | None = None,
 ) -> str:
-    """The lines of :func:`documented_results` under a header, for a recipe's final
-    message; ``""`` when nothing was measured at that budget.
+    """A run's closing lines: the run beside the plain learner and the best
+    setting measured on its task, from one committed summary; ``""`` if none.
 
-    ``task`` is the run's task label (:func:`common.labels.task_label`): a run on
-    envpool is shown the results measured on envpool's layouts, then, under their
-    own header, those on minigrid's envs of the same env id.
+    The summary is :func:`committed_summary`'s; scores are its IQM [95% CI]
+    over seeds of the final return over the oracle's (raw where it has no oracle),
+    and ``run_return`` (this run's final 100-episode mean) on the same scale.
 
     Examples:
-        >>> documented_results_message("MiniGrid-DoorKey-5x5-v0", 123, ".", "a2c_minigrid")
+        >>> measured_comparison("MiniGrid-DoorKey-5x5-v0", 123, ".", "a2c_minigrid")
         ''
     """
-    where = "recipes/minigrid/setting/ (or studies/setting/)<label>.yaml"
-    blocks = []
-    tasks = [task]
-    if task.endswith(ENVPOOL_SUFFIX):
-        tasks.append(task.removesuffix(ENVPOOL_SUFFIX))
-    for shown in tasks:
-        measured = documented_results(
-            shown, frames, results_dir, recipe=recipe, stochasticity=stochasticity
+    found = committed_summary(task, frames, results_dir, recipe, stochasticity)
+    if found is None:
+        return ""
+    path, rows = found
+    oracle = float(rows[0]["oracle_return"] or "nan")
+    scale = "return / oracle" if oracle == oracle else "return"
+    measured = rows[0]["task"]  # the run's task, or minigrid's envs' of its id
+    if path.is_relative_to(Path.cwd()):
+        path = path.relative_to(Path.cwd())
+    lines = [
+        f"Measured on {measured} at {frames} frames ({path}; {scale}, IQM [95% CI]):"
+    ]
+    if run_return is not None:
+        score = run_return / oracle if oracle == oracle else run_return
+        lines.append(f"  {'this run':<34} {score:.2f}")
+    plain = [r for r in rows if split_level(r["setting"])[0] == "none"]
+    best = max(rows, key=lambda r: float(r["train_return_iqm"]))
+    for row, role in [*((r, "plain learner") for r in plain), (best, "best")]:
+        lines.append(
+            f"  {row['setting'] + ' (' + role + ')':<34} "
+            f"{float(row['train_return_iqm']):.2f} "
+            f"[{float(row['train_return_ci_low']):.2f}, "
+            f"{float(row['train_return_ci_high']):.2f}], {row['seeds']} seeds"
         )
-        if not measured:
-            continue
-        env_id = shown.removesuffix(ENVPOOL_SUFFIX)
-        backend = "envpool's" if shown.endswith(ENVPOOL_SUFFIX) else "minigrid's"
-        blocks.append(
-            f"Measured on {env_id} ({backend} envs) at {frames} frames (docs/results, "
-            f"the oracle's return = 1; each label is {where}, vae = the paper's "
-            "KL):\n" + "\n".join(measured)
-        )
-    return "\n".join(blocks)
+    return "\n".join(lines)
 
 
-def documented_results(
+def committed_summary(
     task: str,
     frames: int,
-    results_dir: str | os.PathLike = "docs/results",
-    recipe: str | None = None,
+    results_dir: str | os.PathLike,
+    recipe: str,
     stochasticity: int = 0,
-) -> list[str]:
-    """What the committed sweep results say about ``task`` at ``frames``, one line
-    per setting (from each experiment's ``summary.csv`` whose budget is
-    ``frames``), so a run's final message can show what other learners reach.
+) -> tuple[Path, list[dict]] | None:
+    """The committed ``summary.csv`` that measured ``task`` at ``frames``, and its rows.
 
-    With ``recipe`` (``"a2c_minigrid"``, say), only experiments whose runs all came
-    from ``runs/<recipe>/`` (their ``runs_meta.csv``) count, so that a recipe shows
-    its own learner's results and not another learner's on the same task. Only the
-    settings run at the noise level ``stochasticity`` count, and a setting shown by
-    one experiment (the first by name) is not repeated by another.
-
-    Returns an empty list when nothing was measured at that budget.
-
-    Examples:
-        >>> documented_results("MiniGrid-MultiRoom-N3-S4-v0", 123, results_dir=".")
-        []
+    Among the experiments under ``results_dir`` whose runs all came from
+    ``runs/<recipe>/`` (their ``runs_meta.csv``: the run's own learner), the rows of
+    ``task`` at a budget within 1% of ``frames`` and at the noise level
+    ``stochasticity``; the experiment with the most such settings, the first by
+    name among equals. A run on envpool (``<id>@envpool``) without one is shown
+    minigrid's envs' of the same id. ``None`` when nothing was measured.
     """
     import csv
 
-    lines, shown = [], set()
-    for path in sorted(Path(results_dir).glob("*/summary.csv")):
-        if recipe is not None:
-            meta = path.parent / "runs_meta.csv"
-            if not meta.exists():
-                continue
-            with open(meta) as f:
-                run_dirs = [Path(row["run_dir"]).parts for row in csv.DictReader(f)]
-            if not run_dirs or any(p[:2] != ("runs", recipe) for p in run_dirs):
-                continue
+    def rows_of(path: Path, label: str) -> list[dict]:
+        meta = path.parent / "runs_meta.csv"
+        if not meta.exists():
+            return []
+        with open(meta) as f:
+            run_dirs = [Path(row["run_dir"]).parts for row in csv.DictReader(f)]
+        if not run_dirs or any(p[:2] != ("runs", recipe) for p in run_dirs):
+            return []
         with open(path) as f:
-            for row in csv.DictReader(f):
-                if row.get("task") != task or not row.get("budget"):
-                    continue
-                if abs(float(row["budget"]) - frames) > 0.01 * frames:
-                    continue
-                level = split_level(row["setting"])[1]
-                if level != stochasticity or row["setting"] in shown:
-                    continue
-                shown.add(row["setting"])
-                lines.append(
-                    f"  {row['setting']:<24} return / oracle {float(row['train_return_iqm']):.2f} "
-                    f"[{float(row['train_return_ci_low']):.2f}, "
-                    f"{float(row['train_return_ci_high']):.2f}] (IQM, 95% CI), success "
-                    f"{float(row['train_success_iqm']):.2f}, {row['seeds']} seeds "
-                    f"({path.parent.name})"
-                )
-    return lines
+            return [
+                row
+                for row in csv.DictReader(f)
+                if row.get("task") == label
+                and row.get("budget")
+                and abs(float(row["budget"]) - frames) <= 0.01 * frames
+                and split_level(row["setting"])[1] == stochasticity
+            ]
+
+    summaries = sorted(Path(results_dir).glob("*/summary.csv"))
+    for label in dict.fromkeys([task, task.removesuffix(ENVPOOL_SUFFIX)]):
+        found = [(path, rows_of(path, label)) for path in summaries]
+        found = [(path, rows) for path, rows in found if rows]
+        if found:
+            return max(found, key=lambda item: len(item[1]))
+    return None

@@ -53,13 +53,13 @@ from common.evaluation import EVAL_SEED_OFFSET, EpisodeStats, evaluate
 from common.labels import task_label
 from common.minigrid import (
     bonus_update_steps,
-    documented_results_message,
     inverse_head,
     load_bonus_model,
     make_actor_critic,
     make_bonus,
     make_collector,
     make_env,
+    measured_comparison,
     oracle_optimum,
     rollout_metrics,
     shared_trunk,
@@ -408,12 +408,13 @@ def finish(cfg, run: TrainingRun, t: Training, frames: int, fps: float) -> None:
             cfg, t.policy, run.run_dir, frames, seed=t.eval_seed, logger=run.logger
         )
         print(f"Video: {video}")
-    measured = documented_results_message(
+    measured = measured_comparison(
         task_label(cfg),
         cfg.collector.total_frames,
         Path(__file__).resolve().parents[2] / "docs" / "results",
         f"{algo}_minigrid",
         stochasticity=cfg.env.stochasticity,
+        run_return=stats.mean_return,
     )
     if measured:
         print(measured)
