@@ -103,7 +103,8 @@ def test_a_bad_setting_is_a_config_error_naming_it(override, words):
     [
         (MAIN, "intrinsic.coef_end=nan", ["intrinsic.coef_end", "nan"]),
         (MAIN, "env.name=NoSuchEnv-v0", ["env.name=NoSuchEnv-v0", "no MiniGrid task"]),
-        (DDPG_MAIN, "+eval.video=true", ["eval.video", "interval_frames"]),
+        # a misspelt key added with "+" (eval.video is a DDPG setting since)
+        (DDPG_MAIN, "+eval.vidoe=true", ["eval.vidoe", "eval.video?"]),
     ],
 )
 def test_a_bad_setting_is_one_message_and_leaves_no_file(

@@ -186,7 +186,13 @@ def test_a_resumed_tensorboard_run_continues_its_events(tmp_path):
         # killed between two checkpoints, once it has logged past the first
         wait_for_checkpoint(run_dir / CHECKPOINT_NAME, min_frames=512)
         deadline = time.time() + 120
-        while max(event_steps(p, "train/reward") for p in events.iterdir())[-1] <= 512:
+        while (
+            max(
+                event_steps(p, "train/reward")
+                for p in events.glob("events.out.tfevents.*")
+            )[-1]
+            <= 512
+        ):
             assert time.time() < deadline, "no step logged after the checkpoint"
             time.sleep(0.05)
     finally:
@@ -197,7 +203,9 @@ def test_a_resumed_tensorboard_run_continues_its_events(tmp_path):
     # one run: one experiment directory, which both processes wrote to
     assert [p.name for p in (run_dir / "logs").iterdir()] == ["a2c"]
     written = sorted(
-        s for p in events.iterdir() for s in event_steps(p, "train/reward")
+        s
+        for p in events.glob("events.out.tfevents.*")
+        for s in event_steps(p, "train/reward")
     )
     assert len(written) > len(set(written)), "the killed run logged past 512"
     # what TensorBoard shows: every step once, the killed run's extra ones hidden
