@@ -149,3 +149,35 @@ def test_the_which_bonus_tables_read_their_numbers_from_committed_summaries():
         frames, seeds = (part.strip() for part in budget.split(","))
         assert int(float(frames[:-1]) * _BUDGET[frames[-1]]) == row["budget"]
         assert int(seeds) == row["seeds"], f"{where}, {situation!r}: seeds"
+
+
+def test_the_docs_say_exact_resume_needs_the_same_thread_count():
+    # torch_threads may change on resume (the same run), but a resume is exact
+    # only at the thread count the run started with: the recipes' page says so
+    recipes = " ".join((DOCS / "recipes.rst").read_text().split())
+    assert "``torch_threads``" in recipes
+    assert "a resume is exact at the thread count it started with" in recipes
+
+
+def test_the_new_user_probe_names_tests_that_exist():
+    # tests/probe_new_user.py replays the defects a new user found by the tests
+    # that pin their fixes: each must be a test pytest collects
+    sys.path.insert(0, str(ROOT / "tests"))
+    try:
+        from probe_new_user import PROBE
+    finally:
+        sys.path.remove(str(ROOT / "tests"))
+    ids = sorted({test for _, tests in PROBE.values() for test in tests})
+    assert sorted(PROBE) == list(range(1, 11))
+    result = subprocess.run(
+        [sys.executable, "-m", "pytest", "--collect-only", "-q", *ids],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-2000:]
+    collected = {
+        line.split("[")[0] for line in result.stdout.splitlines() if "::" in line
+    }
+    assert set(ids) <= collected, set(ids) - collected
