@@ -8,7 +8,8 @@ both alike.
 
 ``--a`` and ``--b`` are git revisions (checked out in temporary worktrees) or
 ``.`` for the working tree; everything after ``--`` is the recipe's command line
-(evaluation and periodic checkpoints are pushed past the budget). Prints each
+(evaluation and periodic checkpoints are pushed past the budget), and
+``--b-extra`` adds overrides to B's runs only (a setting A's code has not got). Prints each
 round and the median ratio B / A with the load average.
 """
 
@@ -66,6 +67,9 @@ def main(argv: Sequence[str] | None = None) -> float:
     parser.add_argument("--a", required=True, help="git revision, or . (this tree)")
     parser.add_argument("--b", default=".", help="git revision, or . (default)")
     parser.add_argument("--rounds", type=int, default=4)
+    parser.add_argument(
+        "--b-extra", nargs="+", default=[], metavar="OVERRIDE", help="B's runs only"
+    )
     parser.add_argument("recipe_args", nargs="*", help="the recipe's overrides")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
@@ -75,7 +79,11 @@ def main(argv: Sequence[str] | None = None) -> float:
             ratios = []
             for r in range(args.rounds):
                 order = "AB" if r % 2 == 0 else "BA"
-                fps = {k: fps_cpu(trees[k], args.recipe_args, tmp / k) for k in order}
+                extra = {"A": [], "B": args.b_extra}
+                fps = {
+                    k: fps_cpu(trees[k], [*args.recipe_args, *extra[k]], tmp / k)
+                    for k in order
+                }
                 ratios.append(fps["B"] / fps["A"])
                 print(
                     f"round {r + 1}: A {fps['A']:,.0f}  B {fps['B']:,.0f}  "

@@ -65,6 +65,14 @@ average is recorded with each measurement.
     with the same settings and bonus (plain tensors on envpool, CleanRL's
     ``ppo_atari_envpool.py`` in shape; its own frames per CPU second of its
     training loop, in a subprocess); goal 1.0 (the recipe no slower than by hand).
+11. The suite's VAE bonus end to end on KeyCorridorS3R3 (PPO, envpool, the
+    suite's experiment): frames per CPU second of ``+setting=vae_noveld`` with
+    its VAE trained on the whole batch (the committed runs') and on 512 of its
+    transitions a step (``intrinsic.batch_size=512``) over ``+setting=none``
+    (goal 0.8); and each one's CPU seconds to 0.9 of the oracle: the median
+    frames to 0.9 of its committed runs (5 seeds, ``summary.csv`` of
+    ``docs/results/suite_keycorridor_s3r3`` and ``vae_noveld_batch512_s3r3``)
+    over its frames per CPU second here (goal: the cheaper one at most half).
 
 Recipes, the peer and the hand-written PPO run as subprocesses (their start-up is
 not timed: the recipes time their own training loop, the peer and the hand-written
@@ -162,6 +170,18 @@ SUITE_BONUS_GOAL = 0.5
 # settings, with each bonus (``+setting=...``); goal: no slower than by hand
 PPO_BASELINE = ROOT / "benchmarks" / "ppo_baseline.py"
 BASELINE_BONUSES = ("none", "vae_noveld")
+#: Item 11: the suite task, its experiment, and each setting's committed study.
+E2E_EXPERIMENT = "ppo/suite_keycorridor_s3r3"
+E2E_SETUPS = {
+    "none": (["+setting=none"], None),
+    "vae_noveld": (["+setting=vae_noveld"], "suite_keycorridor_s3r3"),
+    "vae_noveld, batch 512": (
+        ["+setting=vae_noveld", "intrinsic.batch_size=512"],
+        "vae_noveld_batch512_s3r3",
+    ),
+}
+E2E_BONUS_GOAL = 0.8
+E2E_TIME_GOAL = 0.5
 BASELINE_GOAL = 1.0
 
 __all__ = ["main"]
@@ -1266,6 +1286,68 @@ def item_ppo_baseline(b: Bench) -> None:
         )
 
 
+def committed_frames_to(study: str, fraction: float = 0.9) -> tuple[float, str]:
+    """The median frames to ``fraction`` of the oracle of ``vae_noveld``'s runs
+    in a committed study, and how many seeds got there."""
+    import csv
+
+    path = ROOT / "docs" / "results" / study / "summary.csv"
+    with open(path) as f:
+        row = next(
+            r for r in csv.DictReader(f) if r["setting"].startswith("vae_noveld")
+        )
+    frames = row[f"median_frames_to_{fraction}"]
+    return float(frames), f"{row[f'seeds_reaching_{fraction}']}/{row['seeds']} seeds"
+
+
+def item_end_to_end(b: Bench) -> None:
+    print(
+        "[11] vae_noveld end to end on KeyCorridorS3R3: per CPU second over "
+        "none, and CPU seconds to 0.9 of the oracle (committed frames / rate here)",
+        flush=True,
+    )
+    setups = {
+        name: lambda extra=extra: recipe_per_cpu_s(
+            b, "ppo", [f"+experiment={E2E_EXPERIMENT}", *extra]
+        )
+        for name, (extra, _) in E2E_SETUPS.items()
+    }
+    samples = interleave(setups, b.plan.rounds)
+    b.details["end_to_end"] = with_peak_memory(samples)
+    seconds = {}
+    for name, (_, study) in E2E_SETUPS.items():
+        if study is None:
+            continue
+        b.targets.append(
+            Target(
+                11,
+                f"KeyCorridorS3R3, {name} / none",
+                paired_ratio(samples, name, "none"),
+                E2E_BONUS_GOAL,
+                note=f"{med(samples[name]):,.0f} / {med(samples['none']):,.0f} "
+                "frames/CPU-s",
+            )
+        )
+        frames, reached = committed_frames_to(study)
+        seconds[name] = frames / med(samples[name])
+        b.note(
+            f"11: {name}: {frames:,.0f} frames to 0.9 of the oracle (median, "
+            f"{reached}) / {med(samples[name]):,.0f} frames/CPU-s = "
+            f"{seconds[name]:,.0f} CPU s"
+        )
+    cheap, full = seconds["vae_noveld, batch 512"], seconds["vae_noveld"]
+    b.targets.append(
+        Target(
+            11,
+            "KeyCorridorS3R3, CPU s to 0.9: batch 512 / whole batch",
+            cheap / full,
+            E2E_TIME_GOAL,
+            note=f"{cheap:,.0f} / {full:,.0f} CPU s",
+            higher_is_better=False,
+        )
+    )
+
+
 # item -> (its function, the items that need it run)
 ITEMS: dict[int, tuple[Callable[[Bench], None], tuple[int, ...]]] = {
     1: (item_bonus_overhead, (1, 5)),  # item 5 reads its peak memory
@@ -1278,6 +1360,7 @@ ITEMS: dict[int, tuple[Callable[[Bench], None], tuple[int, ...]]] = {
     8: (item_shapes, (8,)),
     9: (item_suite, (9,)),
     10: (item_ppo_baseline, (10,)),
+    11: (item_end_to_end, (11,)),
 }
 
 
