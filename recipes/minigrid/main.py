@@ -272,26 +272,12 @@ def train(cfg, run: TrainingRun, t: Training) -> tuple[int, float]:
             # The bonus is the posterior shift of this batch's VAE update: the VAE
             # trains first (step 5 comes before step 2).
             t.bonus_transform.snapshot()
-            bonus_td = train_bonus_model(
-                t.bonus_loss,
-                t.bonus_optim,
-                data,
-                bonus_steps,
-                t.env_side,
-                cfg.intrinsic.batch_size,
-            )
+            bonus_td = train_bonus(cfg, t, data, bonus_steps)
         data = bonus_and_advantage(cfg, t, data)  # steps 2 and 3
         logs = learner_update(cfg, run, t, data, frames)  # step 4
         # Step 5: train the bonus model on the states of this rollout.
         if variant != "info_gain":
-            bonus_td = train_bonus_model(
-                t.bonus_loss,
-                t.bonus_optim,
-                data,
-                bonus_steps,
-                t.env_side,
-                cfg.intrinsic.batch_size,
-            )
+            bonus_td = train_bonus(cfg, t, data, bonus_steps)
         if variant == "lagged_kl" and iteration % cfg.intrinsic.vae.lag_updates == 0:
             t.bonus_transform.snapshot()
 
@@ -313,6 +299,14 @@ def train(cfg, run: TrainingRun, t: Training) -> tuple[int, float]:
         # Progress, periodic checkpoint, stop on a signal (common/run.py)
         run.after_update()
     return frames, fps
+
+
+def train_bonus(cfg, t: Training, data, steps: int):
+    """Step 5: ``steps`` gradient steps of the bonus model on the batch's states
+    (``intrinsic.batch_size`` of its transitions a step, or all of them)."""
+    return train_bonus_model(
+        t.bonus_loss, t.bonus_optim, data, steps, t.env_side, cfg.intrinsic.batch_size
+    )
 
 
 def bonus_and_advantage(cfg, t: Training, data):
