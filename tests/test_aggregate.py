@@ -645,6 +645,14 @@ def test_a_run_is_compared_at_its_noise_level_and_on_its_backend_first(tmp_path)
         f"{task}@envpool", 500_000, tmp_path, "a2c_minigrid"
     )
     assert on_envpool.startswith(f"Measured on {task}@envpool") and "pool" in on_envpool
+    # the plain learner measured on minigrid's envs beats no plain learner on envpool
+    _committed(tmp_path, "main", "a2c_minigrid", [("none", 0.0), ("vae", 0.9)])
+    on_envpool = measured_comparison(
+        f"{task}@envpool", 500_000, tmp_path, "a2c_minigrid"
+    )
+    assert on_envpool.startswith(f"Measured on {task} at") and "main" in on_envpool
+    assert "none (plain learner)" in on_envpool
+    (tmp_path / "main" / "runs_meta.csv").unlink()
     # an experiment whose runs' recipe is unknown (no runs_meta.csv) is not shown
     (tmp_path / "pool" / "runs_meta.csv").unlink()
     assert (

@@ -541,9 +541,10 @@ def committed_summary(
     Among the experiments under ``results_dir`` whose runs all came from
     ``runs/<recipe>/`` (their ``runs_meta.csv``: the run's own learner), the rows of
     ``task`` at a budget within 1% of ``frames`` and at the noise level
-    ``stochasticity``; the experiment with the most such settings, the first by
-    name among equals. A run on envpool (``<id>@envpool``) without one is shown
-    minigrid's envs' of the same id. ``None`` when nothing was measured.
+    ``stochasticity``; a run on envpool (``<id>@envpool``) is also shown
+    minigrid's envs' of the same id. Of those, the experiment that measured the
+    plain learner, then the run's own backend, then the most settings, the first
+    by name among equals. ``None`` when nothing was measured.
     """
     import csv
 
@@ -565,10 +566,20 @@ def committed_summary(
                 and split_level(row["setting"])[1] == stochasticity
             ]
 
+    def rank(item):
+        own, path, rows = item
+        plain = any(split_level(r["setting"])[0] == "none" for r in rows)
+        return plain, own, len(rows)
+
     summaries = sorted(Path(results_dir).glob("*/summary.csv"))
-    for label in dict.fromkeys([task, task.removesuffix(ENVPOOL_SUFFIX)]):
-        found = [(path, rows_of(path, label)) for path in summaries]
-        found = [(path, rows) for path, rows in found if rows]
-        if found:
-            return max(found, key=lambda item: len(item[1]))
-    return None
+    labels = dict.fromkeys([task, task.removesuffix(ENVPOOL_SUFFIX)])
+    found = [
+        (label == task, path, rows_of(path, label))
+        for label in labels
+        for path in summaries
+    ]
+    found = [item for item in found if item[2]]
+    if not found:
+        return None
+    _, path, rows = max(found, key=rank)  # the first of equals: max keeps it
+    return path, rows
