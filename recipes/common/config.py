@@ -9,18 +9,11 @@ the setting by its full key. The values, and the reason for each, live in the ya
 files: every field here is ``MISSING``.
 
 What a type cannot say is checked by :func:`validate_minigrid` and
-:func:`validate_ddpg`, the first thing each script does with its config, before
-anything is built: every float is finite, each value satisfies its field's
-``rule`` (``optim.lr`` > 0, ``bonus`` one of its choices), and the rules between
-settings hold (``collector.workers`` divides ``env.num_envs``). Each error names
-the setting by its full key and what it expects.
-
-The checks that belong to the objects the recipes build (a bonus transform refuses
-an unknown ``normalization`` or a NaN ``coef`` whoever builds it) stay with them.
-
-Importing this module stores the two schemas in Hydra's ConfigStore (Hydra's
-idiom); ``import common`` does, so any script or test that composes a recipe's
-config has them.
+:func:`validate_ddpg` before anything is built: every float is finite, each value
+satisfies its field's ``rule`` (``optim.lr`` > 0), and the rules between settings
+hold (``collector.workers`` divides ``env.num_envs``); each error names the setting
+by its full key and what it expects. The objects the recipes build keep their own
+checks. Importing this module stores the two schemas in Hydra's ConfigStore.
 
 Examples:
     >>> from omegaconf import OmegaConf
