@@ -30,10 +30,11 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def checkout(rev: str, into: Path) -> Path:
-    """The tree at ``rev`` (a temporary git worktree), or this one for ``.``."""
+    """The tree at ``rev`` (a temporary git worktree at ``into``), or this one
+    for ``.``."""
     if rev == ".":
         return ROOT
-    path = into / rev.replace("/", "_").replace("~", "-")
+    path = into
     subprocess.run(
         ["git", "-C", str(ROOT), "worktree", "add", "--detach", str(path), rev],
         check=True,
@@ -68,14 +69,20 @@ def main(argv: Sequence[str] | None = None) -> float:
     parser.add_argument("--b", default=".", help="git revision, or . (default)")
     parser.add_argument("--rounds", type=int, default=4)
     parser.add_argument(
-        "--b-extra", nargs="+", default=[], metavar="OVERRIDE", help="B's runs only"
+        "--b-extra",
+        nargs="+",
+        default=[],
+        metavar="OVERRIDE",
+        help="B's runs only (put the recipe's overrides after --)",
     )
     parser.add_argument("recipe_args", nargs="*", help="the recipe's overrides")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        trees = {"A": checkout(args.a, tmp), "B": checkout(args.b, tmp)}
+        trees = {}
         try:
+            trees = {"A": checkout(args.a, tmp / "tree_a")}
+            trees["B"] = checkout(args.b, tmp / "tree_b")
             ratios = []
             for r in range(args.rounds):
                 order = "AB" if r % 2 == 0 else "BA"

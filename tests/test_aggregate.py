@@ -610,6 +610,26 @@ def test_a_run_is_shown_beside_the_plain_learner_and_the_best_setting(tmp_path):
     assert len(lines) == 4
     ppo = measured_comparison(task, 500_000, tmp_path, "ppo_minigrid").splitlines()
     assert "c_ppo" in ppo[0] and ppo[2].split()[:3] == ["rnd", "(best)", "1.00"]
+    # a setting without a score (an unfinished seed) is left out, and the best
+    # is another setting than the plain learner
+    _committed(
+        tmp_path,
+        "d_more",
+        "a2c_minigrid",
+        [("none", 0.0), ("rnd", 0.3), ("icm", 0.2), ("e3b", 0.1)],
+    )
+    summary = tmp_path / "d_more" / "summary.csv"
+    summary.write_text(summary.read_text() + f'{task},"vae",0.8,500000,1,,,\n')
+    lines = measured_comparison(task, 500_000, tmp_path, "a2c_minigrid").splitlines()
+    assert "d_more" in lines[0] and lines[2].split()[:2] == ["rnd", "(best)"]
+    _committed(
+        tmp_path,
+        "e_plain",
+        "a2c_minigrid",
+        [("none", 0.5), ("x", 0.1), ("y", 0.1), ("z", 0.1), ("w", 0.1), ("v", 0.1)],
+    )
+    lines = measured_comparison(task, 500_000, tmp_path, "a2c_minigrid").splitlines()
+    assert "e_plain" in lines[0] and lines[2].split()[1] == "(best)"  # not none
     # another budget, another noise level, a task not measured: nothing
     assert measured_comparison(task, 1_000_000, tmp_path, "a2c_minigrid") == ""
     assert measured_comparison(task, 500_000, tmp_path, "a2c_minigrid", 2) == ""
@@ -734,6 +754,12 @@ def test_all_redraws_only_the_figures_a_study_holds(sweep, tmp_path):
     assert main([*argv, "--reps", str(REPS)]) == 0
     assert (study / "curves.png").stat().st_mtime > 0  # redrawn
     assert not (study / "performance_profiles.png").exists()  # a figure no page shows
+    # --all with --figures draws those
+    argv = ["--all", str(tmp_path / "results"), "--oracle", str(sweep["oracle"])]
+    assert (
+        main([*argv, "--reps", str(REPS), "--figures", "performance_profiles.png"]) == 0
+    )
+    assert (study / "performance_profiles.png").is_file()
     # a single study draws every figure unless told otherwise
     out = tmp_path / "one"
     argv = ["--from-data", str(study / "runs.csv.xz"), "--out", str(out)]

@@ -517,9 +517,18 @@ def measured_comparison(
     if run_return is not None:
         score = run_return / oracle if oracle == oracle else run_return
         lines.append(f"  {'this run':<34} {score:.2f}")
-    plain = [r for r in rows if split_level(r["setting"])[0] == "none"]
-    best = max(rows, key=lambda r: float(r["train_return_iqm"]))
-    for row, role in [*((r, "plain learner") for r in plain), (best, "best")]:
+
+    def score(row) -> float:
+        value = float(row["train_return_iqm"] or "nan")
+        return value if value == value else float("-inf")  # no score: last
+
+    scored = [r for r in rows if score(r) > float("-inf")]
+    plain = [r for r in scored if split_level(r["setting"])[0] == "none"]
+    others = [r for r in scored if r not in plain]
+    shown = [(r, "plain learner") for r in plain]
+    if others:
+        shown.append((max(others, key=score), "best"))
+    for row, role in shown:
         lines.append(
             f"  {row['setting'] + ' (' + role + ')':<34} "
             f"{float(row['train_return_iqm']):.2f} "

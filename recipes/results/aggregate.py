@@ -1690,8 +1690,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             runs_csv = args.out / RUNS_FILE
             write_runs_file(data, runs_csv)
             stale = args.out / "runs.csv"
-            if stale.is_file() and stale.resolve() != runs_csv.resolve():
-                stale.unlink()  # superseded by the compressed file just written
+            if (
+                args.from_data is not None
+                and stale.resolve() == args.from_data.resolve()
+            ):
+                stale.unlink()  # earlier data, now in the compressed file just written
             meta.to_csv(args.out / "runs_meta.csv", index=False)
     except (FileNotFoundError, ValueError) as error:
         parser.error(str(error))
@@ -1758,8 +1761,10 @@ def _regenerate_all(parser: argparse.ArgumentParser, args) -> int:
         if args.oracle is not None:
             argv += ["--oracle", *map(str, args.oracle)]
         argv += ["--reps", str(args.reps), "--seed", str(args.seed)]
-        # the figures the directory holds: a figure no page shows is not redrawn
-        argv += ["--figures", *(n for n in FIGURES if (runs_csv.parent / n).is_file())]
+        # the figures asked for, else those the directory holds (a figure no
+        # page shows is not redrawn)
+        held = [n for n in FIGURES if (runs_csv.parent / n).is_file()]
+        argv += ["--figures", *(held if args.figures is None else args.figures)]
         print(f"== {runs_csv.parent}", flush=True)
         main(argv)
     return 0
