@@ -1656,46 +1656,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         oracle = read_oracle(*tables) if use_oracle else {}
         if args.from_data is not None and not args.from_data.is_file():
             raise FileNotFoundError(f"{args.from_data} does not exist")
-        selecting = args.settings is not None or args.tasks is not None
-        if not args.runs and not selecting:
-            runs_csv = args.from_data
-        else:
-            if not args.runs:
-                data = _read_runs_csv(args.from_data)
-                meta = _read_meta_beside(args.from_data)
-            else:
-                runs = find_runs(args.runs, args.label_keys)
-                data = extract_run_data(runs, args.max_points)
-                meta = runs_metadata(runs)
-                if args.from_data is not None:
-                    data, meta = merge_run_data(
-                        _read_runs_csv(args.from_data),
-                        _read_meta_beside(args.from_data),
-                        data,
-                        meta,
-                        source=str(args.from_data),
-                    )
-            if selecting:
-                data, meta = keep_runs(
-                    data, meta, settings=args.settings, tasks=args.tasks
-                )
-                from_dir = args.from_data and args.from_data.resolve().parent
-                if from_dir == args.out.resolve():
-                    option = "--settings" if args.settings is not None else "--tasks"
-                    raise ValueError(
-                        f"{option} would drop runs from {args.from_data}: write "
-                        "the selection to another --out."
-                    )
-            args.out.mkdir(parents=True, exist_ok=True)
-            runs_csv = args.out / RUNS_FILE
-            write_runs_file(data, runs_csv)
-            stale = args.out / "runs.csv"
-            if (
-                args.from_data is not None
-                and stale.resolve() == args.from_data.resolve()
-            ):
-                stale.unlink()  # earlier data, now in the compressed file just written
-            meta.to_csv(args.out / "runs_meta.csv", index=False)
+        runs_csv = _runs_data_file(args)
     except (FileNotFoundError, ValueError) as error:
         parser.error(str(error))
     # Both modes compute from the file just written or given, so the tables of a
@@ -1716,6 +1677,46 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     _report(data, meta, oracle, [runs_csv, *paths.values()])
     return 0
+
+
+def _runs_data_file(args) -> Path:
+    """The per-run data file the tables are computed from: ``--from-data`` as
+    given, or the runs (merged into it, selected) written to ``--out``."""
+    selecting = args.settings is not None or args.tasks is not None
+    if not args.runs and not selecting:
+        return args.from_data
+    if not args.runs:
+        data = _read_runs_csv(args.from_data)
+        meta = _read_meta_beside(args.from_data)
+    else:
+        runs = find_runs(args.runs, args.label_keys)
+        data = extract_run_data(runs, args.max_points)
+        meta = runs_metadata(runs)
+        if args.from_data is not None:
+            data, meta = merge_run_data(
+                _read_runs_csv(args.from_data),
+                _read_meta_beside(args.from_data),
+                data,
+                meta,
+                source=str(args.from_data),
+            )
+    if selecting:
+        data, meta = keep_runs(data, meta, settings=args.settings, tasks=args.tasks)
+        from_dir = args.from_data and args.from_data.resolve().parent
+        if from_dir == args.out.resolve():
+            option = "--settings" if args.settings is not None else "--tasks"
+            raise ValueError(
+                f"{option} would drop runs from {args.from_data}: write "
+                "the selection to another --out."
+            )
+    args.out.mkdir(parents=True, exist_ok=True)
+    runs_csv = args.out / RUNS_FILE
+    write_runs_file(data, runs_csv)
+    stale = args.out / "runs.csv"
+    if args.from_data is not None and stale.resolve() == args.from_data.resolve():
+        stale.unlink()  # earlier data, now in the compressed file just written
+    meta.to_csv(args.out / "runs_meta.csv", index=False)
+    return runs_csv
 
 
 def _report(data, meta, oracle, written) -> None:
