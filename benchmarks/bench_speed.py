@@ -385,7 +385,7 @@ def collector_worker(workers: int, frames_per_env: int, frames: int) -> None:
     with initialize_config_dir(config_dir=str(A2C_MAIN.parent), version_base=None):
         cfg = compose(config_name="config", overrides=overrides)
     torch.manual_seed(0)
-    env = make_env(cfg, cfg.env.num_envs, seed=0)
+    env = make_env(cfg.env, cfg.env.num_envs, seed=0)
     model, _ = make_actor_critic(env.action_spec, intrinsic_critic=False)
     batch = cfg.env.num_envs * frames_per_env
     batches = max(frames // batch, 2)
@@ -416,7 +416,7 @@ def collector_frames_per_cpu_s(num_envs: int, frames: int) -> float:
     overrides = [f"env.num_envs={num_envs}", "collector.frames_per_env=128"]
     with initialize_config_dir(config_dir=str(A2C_MAIN.parent), version_base=None):
         cfg = compose(config_name="config", overrides=overrides)
-    env = make_env(cfg, num_envs, seed=0)
+    env = make_env(cfg.env, num_envs, seed=0)
     model, _ = make_actor_critic(env.action_spec, intrinsic_critic=False)
     batch = num_envs * 128
     batches = max(frames // batch, 2)
@@ -698,7 +698,7 @@ def ddpg_buffer_bytes_per_transition(env_name: str) -> float:
 
     with initialize_config_dir(config_dir=str(DDPG_MAIN.parent), version_base=None):
         cfg = compose(config_name="config", overrides=[f"env.name={env_name}"])
-    env = utils.make_env(cfg, 2, seed=0)
+    env = utils.make_env(cfg.env, 2, seed=0)
     data = env.rollout(500, break_when_any_done=False).reshape(-1)
     env.close()
     size = data.numel()

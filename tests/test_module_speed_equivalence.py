@@ -527,7 +527,7 @@ def test_the_recipes_losses_on_the_shared_trunk_equal_one_trunk_per_head(algo):
         overrides = [f"algo={algo}", "bonus=vae", "env.num_envs=4"]
         cfg = compose("config", overrides=overrides)
     torch.manual_seed(0)
-    env = make_env(cfg, 4, seed=0)
+    env = make_env(cfg.env, 4, seed=0)
     bonus, _, _ = make_bonus(cfg, env.action_spec, "vae")
     ppo = algo == "ppo"
     model, int_value = make_actor_critic(env.action_spec, True, ppo)

@@ -285,7 +285,7 @@ def test_replay_buffer_bonus_equals_env_bonus():
     cfg = make_cfg(
         "bonus=vae", "intrinsic.warmup_frames=0", "intrinsic.vae.hidden_dim=32"
     )
-    env = utils.make_env(cfg, 2, seed=0)
+    env = utils.make_env(cfg.env, 2, seed=0)
     obs_dim = env.observation_spec[utils.OBS_KEY].shape[-1]
     obs_norm = utils.ObservationNormalizer(obs_dim, clip=cfg.obs_norm.clip)
     warmup = env.rollout(100, break_when_any_done=False).reshape(-1)
@@ -339,7 +339,7 @@ def test_td_target_takes_its_next_action_from_the_actor_or_a_target_actor(
 ):
     torch.manual_seed(0)
     cfg = make_cfg(f"loss.delay_actor={delay_actor}", "network.hidden_sizes=[32,32]")
-    env = utils.make_env(cfg, 2, seed=0)
+    env = utils.make_env(cfg.env, 2, seed=0)
     _, _, _, loss, target_updater = utils.make_ddpg(cfg, env)
     batch = env.rollout(20, break_when_any_done=False).reshape(-1)
     has_target = any("target_actor_network_params" in k for k in loss.state_dict())
@@ -379,7 +379,7 @@ def test_unknown_env_id_fails_clearly():
     cfg = make_cfg("env.name=HalfCheetah-v99")
     validate_ddpg(cfg)  # any id is a string: the env factory names it
     with pytest.raises(ValueError, match="HalfCheetah-v99"):
-        utils.make_env(cfg, 1, seed=0)
+        utils.make_env(cfg.env, 1, seed=0)
 
 
 def _run_with_env(run_dir: Path, env_vars: dict, *overrides: str):

@@ -112,7 +112,7 @@ def test_collector_on_a_device_collects_the_same_batch():
 
     def batch(device):
         torch.manual_seed(0)
-        env = make_env(cfg, cfg.env.num_envs, seed=0)
+        env = make_env(cfg.env, cfg.env.num_envs, seed=0)
         model, _ = make_actor_critic(env.action_spec, intrinsic_critic=False)
         policy = utils.SampledCategoricalPolicy(model.get_policy_operator(), device)
         collector = make_collector(env, policy, cfg, total_frames=-1, device=device)

@@ -180,7 +180,7 @@ def test_a_config_without_workers_collects_in_one_process():
     # untyped copy: the schema has the key).
     cfg = OmegaConf.create(OmegaConf.to_container(_config()))
     del cfg.collector.workers
-    env = make_env(cfg, cfg.env.num_envs, seed=0)
+    env = make_env(cfg.env, cfg.env.num_envs, seed=0)
     model, _ = make_actor_critic(env.action_spec, intrinsic_critic=False)
     collector = make_collector(env, model.get_policy_operator(), cfg, total_frames=64)
     assert type(collector) is ResumableCollector
@@ -191,7 +191,7 @@ def test_every_batch_is_collected_with_the_weights_of_the_last_update():
     # Algorithm 1's order: the update between two batches is what the workers'
     # policy samples the next batch with.
     cfg = _config("collector.workers=2")
-    env = make_env(cfg, cfg.env.num_envs, seed=0)
+    env = make_env(cfg.env, cfg.env.num_envs, seed=0)
     model, _ = make_actor_critic(env.action_spec, intrinsic_critic=False)
     policy = model.get_policy_operator()
     collector = make_collector(env, policy, cfg, total_frames=32 * 4)
@@ -222,7 +222,7 @@ def test_torchrl_distributed_collector_runs_here_in_algorithm_1_order():
     from torchrl.collectors.distributed import DistributedCollector
 
     cfg = _config()
-    env = make_env(cfg, 2, seed=0)
+    env = make_env(cfg.env, 2, seed=0)
     model, _ = make_actor_critic(env.action_spec, intrinsic_critic=False)
     policy = model.get_policy_operator()
     nodes, envs_per_node = 2, 2

@@ -61,7 +61,7 @@ def without_repeats(frames: np.ndarray) -> list[np.ndarray]:
 
 def test_a_gif_holds_every_frame_of_a_real_minigrid_episode(tmp_path):
     cfg = minigrid_config()
-    env = make_minigrid_video_env(TASK, SEED, like=make_env(cfg, 1, seed=SEED))
+    env = make_minigrid_video_env(TASK, SEED, like=make_env(cfg.env, 1, seed=SEED))
     policy = random_policy(env)
     video = record_episodes(env, policy)
     minigrid = env.base_env.gym_env.envs[0].unwrapped
@@ -162,7 +162,7 @@ def test_the_video_env_gives_the_policy_the_training_envs_observations():
     # with the noisy TV on: the recipe's transforms are the video env's; on
     # minigrid's envs, whose layouts the video env draws (envpool's: the next test)
     cfg = minigrid_config("env.stochasticity=2", "env.backend=gymnasium")
-    train = make_env(cfg, 1, seed=SEED)
+    train = make_env(cfg.env, 1, seed=SEED)
     video_env = make_minigrid_video_env(TASK, SEED, like=train)
     assert video_env.observation_spec == train.observation_spec
     assert [type(t) for t in video_env.transform] == [type(t) for t in train.transform]

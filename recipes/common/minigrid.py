@@ -60,8 +60,15 @@ __all__ = [
 ]
 
 
-def make_env(cfg, num_envs: int, seed: int, bonus: str = "none", rnd=None):
+def make_env(env_cfg, num_envs: int, seed: int, bonus: str = "none", rnd=None):
     """MiniGrid as one batched TorchRL env, with noise, episode stats (and RND).
+
+    Args:
+        env_cfg: the config's ``env`` section (``name``, ``backend``,
+            ``num_threads``, ``stochasticity``).
+        num_envs (int): envs in the batch.
+        seed (int): the envs' seed.
+        bonus (str): ``"rnd"`` appends ``rnd`` (TorchRL's ``RNDTransform``).
 
     Raises:
         ConfigError: ``env.name`` is not a task of ``env.backend`` (the factory's
@@ -69,17 +76,17 @@ def make_env(cfg, num_envs: int, seed: int, bonus: str = "none", rnd=None):
     """
     try:
         env = make_minigrid_env(
-            cfg.env.name,
+            env_cfg.name,
             num_envs=num_envs,
-            backend=cfg.env.backend,
-            num_threads=cfg.env.num_threads,
+            backend=env_cfg.backend,
+            num_threads=env_cfg.num_threads,
         )
     except UnknownMiniGridTask as err:
-        raise ConfigError(f"env.name={cfg.env.name}: {err}") from None
+        raise ConfigError(f"env.name={env_cfg.name}: {err}") from None
     transforms = []
-    if cfg.env.stochasticity:
+    if env_cfg.stochasticity:
         # Transforms are not seeded by env.set_seed in TorchRL 0.14: seed it here.
-        noise = StochasticityTransform.from_level(cfg.env.stochasticity, seed=seed + 1)
+        noise = StochasticityTransform.from_level(env_cfg.stochasticity, seed=seed + 1)
         transforms.append(noise)
     # RewardSum sees the env's reward: the extrinsic return is what is logged.
     transforms += [RewardSum(), StepCounter()]
@@ -282,7 +289,7 @@ def make_collector(env, policy, cfg, total_frames: int, device=None):
     per_worker = cfg.env.num_envs // workers
     # The workers are spawned processes: the factories travel pickled, with the
     # env settings only (no Hydra interpolation to resolve there).
-    env_cfg = OmegaConf.create({"env": OmegaConf.to_container(cfg.env, resolve=True)})
+    env_cfg = OmegaConf.create(OmegaConf.to_container(cfg.env, resolve=True))
     factories = [
         functools.partial(make_env, env_cfg, per_worker, seed=cfg.seed + w * per_worker)
         for w in range(workers)

@@ -547,9 +547,7 @@ def record_minigrid_video(
 
     # The transforms only: the rendering env is minigrid's whatever the backend.
     env_cfg = OmegaConf.to_container(cfg.env, resolve=True)
-    like = make_env(
-        OmegaConf.create({"env": {**env_cfg, "backend": "gymnasium"}}), 1, seed
-    )
+    like = make_env(OmegaConf.create({**env_cfg, "backend": "gymnasium"}), 1, seed)
     like.close()
     env = make_minigrid_video_env(cfg.env.name, seed, like=like)
     return save_video(

@@ -126,7 +126,7 @@ def finish(cfg, run: TrainingRun, t: Training, frames, updates, fps, ups) -> Non
     if cfg.eval.video:
         # The final actor, without noise, on the evaluation's first episodes, as
         # a GIF (and to a logger that shows videos)
-        like = make_env(cfg, 1, seed=t.eval_seed)
+        like = make_env(cfg.env, 1, seed=t.eval_seed)
         like.close()
         video = record_mujoco_video(
             cfg,
@@ -145,9 +145,9 @@ def build(cfg, run: TrainingRun) -> Training:
     the order they draw random numbers; then the checkpoint restored."""
     # Create envs, seeded with cfg.seed whatever the checkpoint: a resumed run
     # restores the episodes in progress from the collector's state instead.
-    env = make_env(cfg, cfg.env.num_envs, seed=cfg.seed)
+    env = make_env(cfg.env, cfg.env.num_envs, seed=cfg.seed)
     eval_seed = cfg.seed + EVAL_SEED_OFFSET
-    eval_env = make_env(cfg, cfg.eval.num_envs, seed=eval_seed)
+    eval_env = make_env(cfg.env, cfg.eval.num_envs, seed=eval_seed)
     obs_dim = env.observation_spec[OBS_KEY].shape[-1]
 
     # Create the actor, critic and loss

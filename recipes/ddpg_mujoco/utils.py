@@ -40,9 +40,10 @@ REPLAY_KEYS = (
 )
 
 
-def make_env(cfg, num_envs: int, seed: int):
-    """A gymnasium MuJoCo env in TorchRL with extrinsic episode statistics."""
-    env = make_mujoco_env(cfg.env.name, num_envs=num_envs)
+def make_env(env_cfg, num_envs: int, seed: int):
+    """A gymnasium MuJoCo env in TorchRL with extrinsic episode statistics, from
+    the config's ``env`` section (``name``)."""
+    env = make_mujoco_env(env_cfg.name, num_envs=num_envs)
     # RewardSum sees the env's reward: the bonus is mixed in later, on batches, so
     # the logged episode return is the task's. InitTracker resets the OU noise.
     env.append_transform(Compose(InitTracker(), RewardSum(), StepCounter()))

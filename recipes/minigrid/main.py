@@ -132,10 +132,10 @@ def build(cfg, run: TrainingRun, device) -> Training:
     """Envs, the bonus, the actor-critic, losses, optimisers and the collector,
     in the order they draw random numbers; then the checkpoint restored."""
     # Create envs and the bonus
-    env = make_env(cfg, cfg.env.num_envs, seed=cfg.seed)
+    env = make_env(cfg.env, cfg.env.num_envs, seed=cfg.seed)
     bonus_transform, bonus_loss, env_side = build_bonus(cfg, run, env, device)
     eval_seed = cfg.seed + EVAL_SEED_OFFSET
-    eval_env = make_env(cfg, cfg.eval.num_envs, seed=eval_seed)
+    eval_env = make_env(cfg.env, cfg.eval.num_envs, seed=eval_seed)
 
     # Create the actor-critic; PPO's policy records the log-probability of each
     # action it takes: its ratio.
