@@ -228,7 +228,7 @@ def test_torchrl_distributed_collector_runs_here_in_algorithm_1_order():
     nodes, envs_per_node = 2, 2
     collector = DistributedCollector(
         [
-            functools.partial(make_env, cfg, envs_per_node, seed=i * envs_per_node)
+            functools.partial(make_env, cfg.env, envs_per_node, seed=i * envs_per_node)
             for i in range(nodes)
         ],
         policy,
