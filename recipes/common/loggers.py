@@ -9,6 +9,8 @@ from typing import Any
 
 from torchrl.record.loggers.mlflow import MLFlowLogger
 
+from .scalar_logs import ScalarCSVWriter
+
 
 def _without_csv_history(backend: str, state: Mapping[str, Any]) -> dict[str, Any]:
     """``state``, a logger's ``state_dict()``, without TorchRL's CSV logger's
@@ -249,3 +251,71 @@ def _mlflow_run_logger(logs: Path, experiment_name: str, state_dict):
     if state_dict is not None:
         logger.load_state_dict(state_dict)
     return logger
+
+
+class RunLogs:
+    """Where a run's scalars go: its TorchRL logger (:func:`get_run_logger`) and,
+    when that logger is not CSV's, a CSV copy of each scalar
+    (:class:`~common.scalar_logs.ScalarCSVWriter`), which the learning curve is
+    drawn from whatever the logger.
+
+    Args:
+        backend (str): ``logger.backend`` (``""``: no logger, no scalars).
+        run_dir: the run directory (logs under ``<run_dir>/logs``).
+        name (str): the logger's experiment (the learner).
+        project (str): the W&B project.
+        state (LoggerState): the logger's state the checkpoint holds; the logger
+            is attached to it, so the next checkpoint saves it.
+        purge_after: the frames of the checkpoint a run resumes from
+            (:func:`get_run_logger`), ``None`` for a fresh run.
+
+    Examples:
+        >>> import tempfile
+        >>> run_dir = Path(tempfile.mkdtemp())
+        >>> logs = RunLogs("csv", run_dir, "demo", "p", LoggerState("csv"))
+        >>> logs.log({"train/x": 1.0}, step=64)
+        >>> logs.close("FINISHED")
+        >>> (run_dir / "logs/demo/scalars/train/x.csv").read_text()
+        '64,1.0\\n'
+    """
+
+    def __init__(
+        self,
+        backend: str,
+        run_dir: str | os.PathLike,
+        name: str,
+        project: str,
+        state: LoggerState,
+        purge_after: int | None = None,
+    ):
+        self.logger = get_run_logger(
+            backend,
+            run_dir,
+            name,
+            project,
+            state_dict=state.saved_for(backend),
+            purge_after=purge_after,
+        )
+        state.logger = self.logger
+        # CSV's own rows are the logger's; no rows without a logger
+        self._copy = (
+            ScalarCSVWriter(Path(run_dir) / "logs" / name)
+            if backend not in ("csv", "")
+            else None
+        )
+
+    def log(self, metrics: Mapping[str, float], step: int) -> None:
+        """Logs each scalar of ``metrics`` at ``step``."""
+        if self.logger is not None:
+            for name, value in metrics.items():
+                self.logger.log_scalar(name, value, step=step)
+        if self._copy is not None:
+            for name, value in metrics.items():
+                self._copy.add_scalar(name, value, step)
+
+    def close(self, status: str) -> None:
+        """Ends the logger's run with ``status`` (``"FINISHED"``, ``"KILLED"``:
+        :func:`end_logger_run`) and closes the CSV copy."""
+        end_logger_run(self.logger, status)
+        if self._copy is not None:
+            self._copy.close()

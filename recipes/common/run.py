@@ -30,7 +30,7 @@ from .checkpoint import (
 from .errors import NonFiniteRun, UserMistake
 from .evaluation import plot_run_curves
 from .labels import run_labels
-from .loggers import LoggerState, end_logger_run, get_run_logger
+from .loggers import LoggerState, RunLogs
 from .rundir import (
     LOCK_NAME,
     RunDirInUse,
@@ -38,15 +38,8 @@ from .rundir import (
     prepare_run,
     write_run_record,
 )
-from .scalar_logs import ScalarCSVWriter, scalar_log_files
-from .stopping import (
-    StopSignal,
-    exit_process,
-    in_sweep,
-    register_recipes_pickling,
-    resume_command,
-    submitit_requeue,
-)
+from .scalar_logs import scalar_log_files
+from .stopping import StopSignal, in_sweep, stop_and_exit
 
 __all__ = ["CURVE_NAME", "TrainingRun"]
 
@@ -63,7 +56,7 @@ class TrainingRun:
     2. :meth:`restore` with what a checkpoint holds, once the run is built: loads
        the checkpoint into it, opens the logger (:attr:`logger`; a resumed run
        continues its logger's run from the state the checkpoint holds as
-       ``"logger"``, :func:`get_run_logger`), shows a progress bar
+       ``"logger"``, :class:`RunLogs`), shows a progress bar
        (:attr:`progress_bar`) and turns the :data:`STOP_SIGNALS` into a request
        to stop (:class:`StopSignal`).
     3. :meth:`after_update` once per collected batch, after its evaluation: the
@@ -133,8 +126,7 @@ class TrainingRun:
             self.abandon()  # refused: the directory is as it was, and free
             raise
         self._source = source if self.resumed_from else None
-        self.logger = None
-        self._scalar_copy: ScalarCSVWriter | None = None
+        self.logs: RunLogs | None = None
         self.progress_bar = None
         self.counters: RunCounters | None = None
         self._checkpoint: RunCheckpoint | None = None
@@ -243,22 +235,14 @@ class TrainingRun:
             RunCheckpoint(self._source, saved, config={}).load(self._source)
         # the run starts: its record (resolved config, Hydra's) is this launch's
         write_run_record(self.run_dir, cfg)
-        self.logger = get_run_logger(
+        self.logs = RunLogs(
             cfg.logger.backend,
             self.run_dir,
             self.name,
             cfg.logger.project_name,
-            state_dict=logger_state.saved_for(cfg.logger.backend),
+            logger_state,
             # a fresh run has no events of a killed run to hide
             purge_after=self.counters.frames if self._source is not None else None,
-        )
-        logger_state.logger = self.logger
-        # The learning curve is drawn from CSV rows: a run logging elsewhere
-        # keeps them too (CSV's own are the logger's; none without a logger).
-        self._scalar_copy = (
-            ScalarCSVWriter(self.run_dir / "logs" / self.name)
-            if cfg.logger.backend not in ("csv", "")
-            else None
         )
         self._stop = StopSignal()
         self._on_exit = tuple(on_exit)
@@ -311,52 +295,38 @@ class TrainingRun:
                     f"and stops. {kept} {DIVERGED_ADVICE}".replace("  ", " ")
                 )
 
+    @property
+    def logger(self):
+        """The run's TorchRL logger (``None`` before :meth:`restore`, or with
+        ``logger.backend=''``)."""
+        return None if self.logs is None else self.logs.logger
+
     def log(self, metrics: Mapping[str, float], step: int) -> None:
-        """Logs each scalar of ``metrics`` at ``step`` (nothing without a logger),
-        and keeps it as a CSV row when the logger is not CSV's (the curve's)."""
-        if self.logger is not None:
-            for name, value in metrics.items():
-                self.logger.log_scalar(name, value, step=step)
-        if self._scalar_copy is not None:
-            for name, value in metrics.items():
-                self._scalar_copy.add_scalar(name, value, step)
+        """Logs each scalar of ``metrics`` at ``step`` (:class:`RunLogs`)."""
+        self.logs.log(metrics, step)
 
     def after_update(self) -> None:
         """The end of an iteration (updates done, logs written): progress, the
         periodic checkpoint, and on a stop request save, say how to resume, exit
-        with status ``128 + signal`` (:func:`exit_process`)."""
+        with status ``128 + signal`` (:func:`stop_and_exit`)."""
         frames = self.counters.frames
         self.progress_bar.update(frames - self.progress_bar.n)
         self._checkpoint.save_every(
             self.cfg.checkpoint.interval_frames, self.cfg.collector.total_frames
         )
-        if not self._stop:
-            return
-        self._checkpoint.save()
-        end_logger_run(self.logger, "KILLED")
-        if self._scalar_copy is not None:
-            self._scalar_copy.close()
+        if self._stop:
+            self._checkpoint.save()
+            stop_and_exit(
+                self._stop, self.run_dir, frames, lambda: self._close("KILLED")
+            )
+
+    def _close(self, status: str) -> None:
+        # what the run holds open: its logs, its progress bar, the recipe's
+        # (the collector's shutdown)
+        self.logs.close(status)
         self.progress_bar.close()
         for close in self._on_exit:
             close()
-        requeue = submitit_requeue(self._stop)
-        then = (
-            "submitit requeues the job, which resumes from it."
-            if requeue is not None
-            else f"Resume with: {resume_command(self.run_dir)}"
-        )
-        print(
-            f"{self._stop.name}: stopped at {frames} frames, checkpoint saved. {then}",
-            flush=True,
-        )
-        if requeue is not None:
-            # submitit's handler saves its job (the launcher's task with the same
-            # arguments), requeues it and exits; the job comes back with
-            # resume=auto and continues from the checkpoint just saved.
-            register_recipes_pickling()
-            self._stop.restore()
-            requeue()
-        exit_process(128 + self._stop.received)
 
     def finish(
         self,
@@ -380,13 +350,8 @@ class TrainingRun:
             The learning curve's path (``None`` when nothing was logged).
         """
         self._stop.restore()
-        self.progress_bar.close()
         self._checkpoint.save()
-        end_logger_run(self.logger, "FINISHED")
-        if self._scalar_copy is not None:
-            self._scalar_copy.close()
-        for close in self._on_exit:
-            close()
+        self._close("FINISHED")
         curve = plot_run_curves(
             self.run_dir / "logs",
             curves,

@@ -14,7 +14,7 @@ import shlex
 import signal
 import sys
 import types
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import NoReturn
 
@@ -228,6 +228,33 @@ def submitit_requeue(stop: StopSignal):
         return None
     handler = stop.previous(preempt)
     return functools.partial(handler, preempt, None) if callable(handler) else None
+
+
+def stop_and_exit(
+    stop: StopSignal, run_dir: str | os.PathLike, frames: int, close: Callable[[], None]
+) -> NoReturn:
+    """Ends a run on a stop request, its checkpoint saved at ``frames``: closes
+    what it holds (``close``), says how it resumes and exits with status ``128 +
+    signal`` (:func:`exit_process`); in a submitit job, on its preempt signal,
+    submitit's handler requeues the job instead (:func:`submitit_requeue`)."""
+    close()
+    requeue = submitit_requeue(stop)
+    then = (
+        "submitit requeues the job, which resumes from it."
+        if requeue is not None
+        else f"Resume with: {resume_command(run_dir)}"
+    )
+    print(
+        f"{stop.name}: stopped at {frames} frames, checkpoint saved. {then}", flush=True
+    )
+    if requeue is not None:
+        # submitit's handler saves its job (the launcher's task with the same
+        # arguments), requeues it and exits; the job comes back with resume=auto
+        # and continues from the checkpoint just saved.
+        register_recipes_pickling()
+        stop.restore()
+        requeue()
+    exit_process(128 + stop.received)
 
 
 def in_sweep() -> bool:
