@@ -647,3 +647,12 @@ class RunCounters:
 def holds_component(path: Path, name: str) -> bool:
     # a checkpoint of the previous format never holds the logger's state
     return not is_legacy(path) and name in Checkpoint.manifest(path)["components"]
+
+
+def load_resumed(source: Path, components: Mapping[str, Any]) -> None:
+    """Loads the checkpoint at ``source``, the one a run resumes from, into
+    ``components``; a checkpoint written before the logger's state was saved
+    (``"logger"``) loads without it, and the resumed logger starts afresh."""
+    if not holds_component(source, "logger"):
+        components = {k: v for k, v in components.items() if k != "logger"}
+    RunCheckpoint(source, components, config={}).load(source)

@@ -21,6 +21,7 @@ __all__ = [
     "evaluate",
     "plot_learning_curves",
     "plot_run_curves",
+    "run_curve_text",
 ]
 
 
@@ -268,3 +269,20 @@ def plot_run_curves(
     if not data:
         return None
     return plot_learning_curves(data, path, title=title, ylabel=ylabel, optimum=optimum)
+
+
+def run_curve_text(curve: Path | None, backend: str, curves: Mapping[str, str]) -> str:
+    """What a run's end says of its learning curve: its path, or why none was
+    drawn (:func:`plot_run_curves` gave ``None``).
+
+    Examples:
+        >>> run_curve_text(None, "", {"train/x": "x"})
+        "none (logger.backend='' logs no scalars)"
+        >>> run_curve_text(None, "csv", {"train/x": "x"})
+        'none (no finite value of train/x was logged)'
+    """
+    if curve is not None:
+        return str(curve)
+    if backend == "":
+        return "none (logger.backend='' logs no scalars)"
+    return f"none (no finite value of {', '.join(curves) or 'any scalar'} was logged)"

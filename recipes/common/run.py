@@ -25,10 +25,10 @@ from .checkpoint import (
     RunCheckpoint,
     RunCounters,
     first_non_finite,
-    holds_component,
+    load_resumed,
 )
 from .errors import NonFiniteRun, UserMistake
-from .evaluation import plot_run_curves
+from .evaluation import plot_run_curves, run_curve_text
 from .labels import run_labels
 from .loggers import LoggerState, RunLogs
 from .rundir import (
@@ -229,10 +229,7 @@ class TrainingRun:
             status=run_labels(config, self.run_dir),
         )
         if self._source is not None:
-            if not holds_component(self._source, "logger"):
-                # written before the logger's state was saved: resumed without it
-                saved = components
-            RunCheckpoint(self._source, saved, config={}).load(self._source)
+            load_resumed(self._source, saved)
         # the run starts: its record (resolved config, Hydra's) is this launch's
         write_run_record(self.run_dir, cfg)
         self.logs = RunLogs(
@@ -360,23 +357,13 @@ class TrainingRun:
             ylabel=ylabel,
             optimum=optimum,
         )
-        drawn = (
-            curve
-            if curve is not None
-            else f"none ({_no_curve_reason(self.cfg.logger.backend, curves)})"
-        )
+        drawn = run_curve_text(curve, self.cfg.logger.backend, curves)
         print(
             f"Done: {summary}\nLearning curve: {drawn}\n"
             f"Logs: {self.run_dir / 'logs'}\nRun directory: {self.run_dir}"
         )
         self._lock.release()
         return curve
-
-
-def _no_curve_reason(backend: str, curves: Mapping[str, str]) -> str:
-    if backend == "":
-        return "logger.backend='' logs no scalars"
-    return f"no finite value of {', '.join(curves) or 'any scalar'} was logged"
 
 
 def _resolved(cfg) -> dict[str, Any]:
