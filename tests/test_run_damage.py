@@ -483,6 +483,7 @@ def test_status_records_how_far_the_run_got(tmp_path):
     assert status["total_frames"] == 512
     assert status["finished"] is False
     assert status["task"] == "MiniGrid-Empty-5x5-v0"
+    assert status["backend"] == "gymnasium"
     assert status["seed"] == 0
     assert status["setting"] == "none"
     assert status["logs"] == [DRAW]
@@ -492,7 +493,9 @@ def test_status_records_how_far_the_run_got(tmp_path):
 
 
 def test_status_names_an_envpool_run_as_the_aggregation_does(tmp_path):
+    # the task is the env id, the backend where it ran: two fields, as the
+    # aggregation's task and backend columns
     env = {"name": "MiniGrid-Empty-5x5-v0", "backend": "envpool"}
     _train(tmp_path, 128, env=env)
     status = json.loads((tmp_path / "status.json").read_text())
-    assert status["task"] == "MiniGrid-Empty-5x5-v0@envpool"
+    assert (status["task"], status["backend"]) == ("MiniGrid-Empty-5x5-v0", "envpool")

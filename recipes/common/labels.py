@@ -1,4 +1,5 @@
-"""What identifies a run in a sweep: its task, its setting and its seed.
+"""What identifies a run in a sweep: its task (an env id and the backend it ran
+on), its setting and its seed.
 
 The run writes them to its ``status.json`` (:func:`common.status.write_run_status`)
 and the aggregation groups runs by them (``results.aggregate``): one definition,
@@ -14,14 +15,17 @@ from typing import Any
 
 __all__ = [
     "ENVPOOL_SUFFIX",
+    "GYMNASIUM",
     "LEVEL_KEY",
     "split_level",
     "add_label_keys",
     "add_label_keys_argument",
     "read_overrides",
+    "run_backend",
     "run_labels",
     "setting_label",
     "task_label",
+    "task_name",
 ]
 
 #: The override that names a run's noise level in its setting label.
@@ -43,6 +47,42 @@ _NOT_SETTING = {
 # Sections whose overrides change what a run reports or how it saves (they may
 # change on resume, common.rundir.RESUMABLE_CHANGES), not what it learns.
 _NOT_SETTING_SECTIONS = ("hydra", "logger", "eval", "checkpoint")
+
+#: The backend of minigrid's Python envs (and of MuJoCo's gymnasium envs).
+GYMNASIUM = "gymnasium"
+
+
+def run_backend(config: Mapping) -> str:
+    """Where a run stepped its env: the config's ``env.backend``.
+
+    envpool's MiniGrid is the same task with its own layouts for a seed, so its
+    runs are never pooled with minigrid's runs of the env id: a task is the pair
+    (env id, backend), normalised by the oracle over that backend's layouts.
+
+    Examples:
+        >>> run_backend({"env": {"name": "MiniGrid-DoorKey-8x8-v0", "backend": "envpool"}})
+        'envpool'
+        >>> run_backend({"env": {"name": "MiniGrid-DoorKey-8x8-v0"}})
+        'gymnasium'
+    """
+    backend = (config.get("env") or {}).get("backend")
+    # A config written before env.backend existed: its run used minigrid's Python
+    # envs (MuJoCo's recipe has no other backend).
+    return GYMNASIUM if backend is None else str(backend)
+
+
+def task_name(task: str, backend: str) -> str:
+    """How a text or a figure names a task: the env id, followed by its backend
+    in parentheses when that is not :data:`GYMNASIUM`.
+
+    Examples:
+        >>> task_name("MiniGrid-DoorKey-8x8-v0", "gymnasium")
+        'MiniGrid-DoorKey-8x8-v0'
+        >>> task_name("MiniGrid-DoorKey-8x8-v0", "envpool")
+        'MiniGrid-DoorKey-8x8-v0 (envpool)'
+    """
+    return task if backend == GYMNASIUM else f"{task} ({backend})"
+
 
 #: What :func:`task_label` appends to the env id of a run on envpool's MiniGrid.
 ENVPOOL_SUFFIX = "@envpool"
@@ -135,18 +175,20 @@ def read_overrides(run_dir: str | os.PathLike) -> list[str] | None:
 
 def run_labels(config: Mapping, run_dir: str | os.PathLike) -> dict[str, Any]:
     """What identifies the run in ``run_dir`` with config ``config``: its
-    ``task`` (:func:`task_label`), ``seed`` and ``setting`` (:func:`setting_label`
-    of its overrides, :func:`read_overrides`).
+    ``task`` (``env.name``, the env id), ``backend`` (:func:`run_backend`),
+    ``seed`` and ``setting`` (:func:`setting_label` of its overrides,
+    :func:`read_overrides`).
 
     Examples:
         >>> import tempfile
         >>> config = {"env": {"name": "MiniGrid-Empty-5x5-v0", "backend": "envpool"},
         ...           "seed": 3, "bonus": "vae"}
         >>> run_labels(config, tempfile.mkdtemp())
-        {'task': 'MiniGrid-Empty-5x5-v0@envpool', 'seed': 3, 'setting': 'vae'}
+        {'task': 'MiniGrid-Empty-5x5-v0', 'backend': 'envpool', 'seed': 3, 'setting': 'vae'}
     """
     return {
-        "task": task_label(config),
+        "task": str((config.get("env") or {}).get("name")),
+        "backend": run_backend(config),
         "seed": config.get("seed"),
         "setting": setting_label(config, read_overrides(run_dir)),
     }

@@ -26,8 +26,9 @@ def write_run_status(
 ) -> Path:
     """Writes ``<run_dir>/status.json`` atomically: how far the run got.
 
-    Keys: ``task`` (``env.name``, ``<env id>@envpool`` on envpool), ``seed``,
-    ``setting`` (the labels the aggregation gives the run: ``labels``, else
+    Keys: ``task`` (``env.name``, the env id), ``backend`` (``env.backend``:
+    where the run stepped its env), ``seed``, ``setting`` (the labels the
+    aggregation gives the run: ``labels``, else
     :func:`common.labels.run_labels` of ``config`` and the run's overrides), ``frames``
     (done, as in the checkpoint), ``total_frames`` (the budget,
     ``collector.total_frames``), ``finished`` (``frames >= total_frames``),
@@ -43,6 +44,8 @@ def write_run_status(
         >>> status = read_run_status(run_dir)
         >>> status["finished"], status["frames"], status["setting"]
         (True, 1024, 'vae')
+        >>> status["task"], status["backend"]
+        ('MiniGrid-Empty-5x5-v0', 'gymnasium')
     """
     run_dir = Path(run_dir)
     if labels is None:
@@ -50,6 +53,7 @@ def write_run_status(
     total = (config.get("collector") or {}).get("total_frames")
     status = {
         "task": labels["task"],
+        "backend": labels["backend"],
         "seed": labels["seed"],
         "setting": labels["setting"],
         "frames": int(frames),
