@@ -10,9 +10,9 @@ opens onto a room's corner (``redraw_corner_doors=False``, envpool's own
 generator). ``z`` is the difference of the means over its standard error.
 
 With ``--out FOLDER`` it also writes ``envpool_oracle_returns.csv`` there: the
-rows of envpool's layouts (redrawn as the backend does), each task named
-``<env id>@envpool``, as the aggregation names envpool runs' tasks and reads their
-oracle (``recipes/results/aggregate.py``).
+rows of envpool's layouts (redrawn as the backend does), each task's env id with
+``envpool`` in its ``backend`` column, which the aggregation reads as the oracle
+of envpool runs' tasks (``recipes/results/aggregate.py``).
 
 Usage::
 
@@ -91,7 +91,7 @@ def main() -> None:
         ref = summary(oracle_returns(task, range(args.seeds)))
         rows = [("minigrid", ref)]
         solutions = envpool_solutions(task, args.seeds)
-        table.append(oracle_row(f"{task}@envpool", solutions))
+        table.append(oracle_row(task, solutions))
         rows.append(("envpool", summary(solutions)))
         if "MultiRoom" in task:
             raw = envpool_solutions(task, args.seeds, redraw=False)
@@ -107,9 +107,8 @@ def main() -> None:
                 f"{unsolvable:>10.1%} {steps:>10.2f} {z:>6.1f}"
             )
     if args.out is not None:
-        print(
-            f"Wrote {write_oracle_csv(table, args.out / 'envpool_oracle_returns.csv')}"
-        )
+        path = args.out / "envpool_oracle_returns.csv"
+        print(f"Wrote {write_oracle_csv(table, path, backend='envpool')}")
 
 
 if __name__ == "__main__":

@@ -8,9 +8,10 @@ by :func:`~torchrl_surprise.envs.oracle.solve_minigrid` (a shortest solution, so
 return is the best achievable with the whole grid in view). Prints the mean return
 with its standard error (population std / sqrt(n)), the mean and largest number of
 steps and the seconds per layout, and writes one CSV per backend with the columns of
-:data:`~torchrl_surprise.envs.oracle.ORACLE_CSV_COLUMNS`; envpool's rows are named
-``<env id>@envpool``, as ``recipes/results/aggregate.py`` names runs on envpool, and
-its ``--oracle`` reads both tables.
+:data:`~torchrl_surprise.envs.oracle.ORACLE_CSV_COLUMNS` and a ``backend`` column
+(``gymnasium`` for minigrid's layouts, ``envpool`` for envpool's: the backends of
+the runs' configs, by which ``recipes/results/aggregate.py`` tells their tasks
+apart); its ``--oracle`` reads both tables.
 
 Usage::
 
@@ -30,7 +31,8 @@ from envpool_oracle import envpool_solutions  # benchmarks/, beside this script
 from results.oracle import format_oracle_table, write_oracle_csv
 from torchrl_surprise.envs.oracle import oracle_returns, oracle_row
 
-ENVPOOL_SUFFIX = "@envpool"  # recipes.results.aggregate.ENVPOOL_SUFFIX
+#: The ``backend`` column of each backend's table: the runs' ``env.backend``.
+WRITTEN_BACKEND = {"minigrid": "gymnasium", "envpool": "envpool"}
 
 TASKS = (
     "MiniGrid-KeyCorridorS3R3-v0",
@@ -73,10 +75,7 @@ def main() -> None:
             else:
                 solutions = envpool_solutions(task, args.seeds)
             seconds = (time.perf_counter() - start) / args.seeds
-            # recipes/results/aggregate.py names a run on envpool <env id>@envpool
-            # (its layouts differ per seed) and merges the oracle tables by name.
-            label = task if backend == "minigrid" else f"{task}{ENVPOOL_SUFFIX}"
-            row = oracle_row(label, solutions)
+            row = oracle_row(task, solutions)
             tables[backend].append(row)
             se = row["std_return"] / row["seeds"] ** 0.5
             print(
@@ -91,7 +90,8 @@ def main() -> None:
         if args.out is not None:
             suffix = "" if backend == "minigrid" else f"_{backend}"
             path = args.out / f"suite_oracle_returns{suffix}.csv"
-            print(f"wrote {write_oracle_csv(rows, path)}")
+            written = write_oracle_csv(rows, path, backend=WRITTEN_BACKEND[backend])
+            print(f"wrote {written}")
 
 
 if __name__ == "__main__":

@@ -121,7 +121,12 @@ def sweep(tmp_path_factory) -> dict[str, Path]:
         cheetah_run(root / "runs" / "cheetah", None, seed, 10000)
     oracle = root / "oracle_returns.csv"
     pd.DataFrame(
-        {"env": [MINIGRID, "MiniGrid-Other-v0"], "seeds": 10, "mean_return": [0.8, 0.5]}
+        {
+            "env": [MINIGRID, "MiniGrid-Other-v0"],
+            "backend": "gymnasium",
+            "seeds": 10,
+            "mean_return": [0.8, 0.5],
+        }
     ).to_csv(oracle, index=False)
     out = root / "results"
     argv = [str(root / "runs" / "minigrid"), str(root / "runs" / "cheetah")]
@@ -415,7 +420,7 @@ def test_settings_keeps_only_the_runs_of_those_settings(sweep, tmp_path):
     # (frame counts stay integers beside an unnormalised task's empty cells)
     def line(results):
         text = (results / "summary.csv").read_text().splitlines()
-        return [row for row in text if row.startswith(f'{MINIGRID},"{vae}"')]
+        return [row for row in text if row.startswith(f'{MINIGRID},gymnasium,"{vae}"')]
 
     assert len(line(out)) == 1 and line(out) == line(sweep["out"])
     # from the committed data alone
@@ -547,7 +552,7 @@ def test_a_threshold_counts_only_once_the_episode_window_is_full():
     # frames), the time-outs end later and pull the mean down; the 100-episode
     # window fills at 3000 frames, where the return is 0.5 of the oracle's.
     rows = [(1000, 0.8, 10), (2000, 0.2, 60), (3000, 0.5, 120), (4000, 0.9, 200)]
-    run = {"task": "A", "setting": "s", "seed": 0}
+    run = {"task": "A", "backend": "gymnasium", "setting": "s", "seed": 0}
     data = pd.DataFrame(
         [
             {**run, "frames": f, "metric": "train/episode_return", "value": v}
@@ -558,27 +563,36 @@ def test_a_threshold_counts_only_once_the_episode_window_is_full():
             for f, _, n in rows
         ]
     )
-    table = frames_to_threshold(data, {"A": 1.0}, fractions=[0.5, 0.8])
+    oracle = {("A", "gymnasium"): 1.0}
+    table = frames_to_threshold(data, oracle, fractions=[0.5, 0.8])
     assert table["frames"].tolist() == [3000, 4000]
     # A run that logged no episode count is read as before.
     plain = data[data["metric"] == "train/episode_return"]
-    table = frames_to_threshold(plain, {"A": 1.0}, fractions=[0.5, 0.8])
+    table = frames_to_threshold(plain, oracle, fractions=[0.5, 0.8])
     assert table["frames"].tolist() == [1000, 1000]
 
 
 _SUMMARY_HEADER = (
-    "task,setting,oracle_return,budget,seeds,train_return_iqm,train_return_ci_low,"
-    "train_return_ci_high\n"
+    "task,backend,setting,oracle_return,budget,seeds,train_return_iqm,"
+    "train_return_ci_low,train_return_ci_high\n"
 )
 
 
-def _committed(tmp_path, name, recipe, rows, task="MiniGrid-MultiRoom-N3-S4-v0"):
+def _committed(
+    tmp_path,
+    name,
+    recipe,
+    rows,
+    task="MiniGrid-MultiRoom-N3-S4-v0",
+    backend="gymnasium",
+):
     # a committed experiment: its summary rows (setting, IQM) and its runs' recipe
     (tmp_path / name).mkdir()
     (tmp_path / name / "summary.csv").write_text(
         _SUMMARY_HEADER
         + "".join(
-            f'{task},"{s}",0.8,500000,5,{v},{v - 0.1},{v + 0.05}\n' for s, v in rows
+            f'{task},{backend},"{s}",0.8,500000,5,{v},{v - 0.1},{v + 0.05}\n'
+            for s, v in rows
         )
     )
     (tmp_path / name / "runs_meta.csv").write_text(
@@ -599,7 +613,7 @@ def test_a_run_is_shown_beside_the_plain_learner_and_the_best_setting(tmp_path):
     )
     _committed(tmp_path, "c_ppo", "ppo_minigrid", [("none", 0.99), ("rnd", 1.0)])
     lines = measured_comparison(
-        task, 500_000, tmp_path, "a2c_minigrid", run_return=0.76
+        task, "gymnasium", 500_000, tmp_path, "a2c_minigrid", run_return=0.76
     ).splitlines()
     # one summary, the one with the most settings of the run's own learner
     assert "b_main" in lines[0] and "return / oracle" in lines[0]
@@ -608,7 +622,9 @@ def test_a_run_is_shown_beside_the_plain_learner_and_the_best_setting(tmp_path):
     assert lines[3].split()[:3] == ["vae_elliptical", "(best)", "0.94"]
     assert "[0.84, 0.99], 5 seeds" in lines[3]
     assert len(lines) == 4
-    ppo = measured_comparison(task, 500_000, tmp_path, "ppo_minigrid").splitlines()
+    ppo = measured_comparison(
+        task, "gymnasium", 500_000, tmp_path, "ppo_minigrid"
+    ).splitlines()
     assert "c_ppo" in ppo[0] and ppo[2].split()[:3] == ["rnd", "(best)", "1.00"]
     # a setting without a score (an unfinished seed) is left out, and the best
     # is another setting than the plain learner
@@ -619,8 +635,12 @@ def test_a_run_is_shown_beside_the_plain_learner_and_the_best_setting(tmp_path):
         [("none", 0.0), ("rnd", 0.3), ("icm", 0.2), ("e3b", 0.1)],
     )
     summary = tmp_path / "d_more" / "summary.csv"
-    summary.write_text(summary.read_text() + f'{task},"vae",0.8,500000,1,,,\n')
-    lines = measured_comparison(task, 500_000, tmp_path, "a2c_minigrid").splitlines()
+    summary.write_text(
+        summary.read_text() + f'{task},gymnasium,"vae",0.8,500000,1,,,\n'
+    )
+    lines = measured_comparison(
+        task, "gymnasium", 500_000, tmp_path, "a2c_minigrid"
+    ).splitlines()
     assert "d_more" in lines[0] and lines[2].split()[:2] == ["rnd", "(best)"]
     _committed(
         tmp_path,
@@ -628,12 +648,16 @@ def test_a_run_is_shown_beside_the_plain_learner_and_the_best_setting(tmp_path):
         "a2c_minigrid",
         [("none", 0.5), ("x", 0.1), ("y", 0.1), ("z", 0.1), ("w", 0.1), ("v", 0.1)],
     )
-    lines = measured_comparison(task, 500_000, tmp_path, "a2c_minigrid").splitlines()
+    lines = measured_comparison(
+        task, "gymnasium", 500_000, tmp_path, "a2c_minigrid"
+    ).splitlines()
     assert "e_plain" in lines[0] and lines[2].split()[1] == "(best)"  # not none
     # another budget, another noise level, a task not measured: nothing
-    assert measured_comparison(task, 1_000_000, tmp_path, "a2c_minigrid") == ""
-    assert measured_comparison(task, 500_000, tmp_path, "a2c_minigrid", 2) == ""
-    assert measured_comparison("MiniGrid-Empty-5x5-v0", 500_000, tmp_path, "a2c") == ""
+    on = (task, "gymnasium")
+    assert measured_comparison(*on, 1_000_000, tmp_path, "a2c_minigrid") == ""
+    assert measured_comparison(*on, 500_000, tmp_path, "a2c_minigrid", 2) == ""
+    empty = ("MiniGrid-Empty-5x5-v0", "gymnasium")
+    assert measured_comparison(*empty, 500_000, tmp_path, "a2c") == ""
 
 
 def test_a_run_is_compared_at_its_noise_level_and_on_its_backend_first(tmp_path):
@@ -650,37 +674,34 @@ def test_a_run_is_compared_at_its_noise_level_and_on_its_backend_first(tmp_path)
             ("none,env.stochasticity=2", 0.0),
         ],
     )
-    level2 = measured_comparison(task, 500_000, tmp_path, "a2c_minigrid", 2)
+    level2 = measured_comparison(
+        task, "gymnasium", 500_000, tmp_path, "a2c_minigrid", 2
+    )
     assert "none,env.stochasticity=2 (plain learner)" in level2
     assert "icm,env.stochasticity=2 (best)" in level2 and "0.34" not in level2
+
+    def on_envpool() -> str:
+        return measured_comparison(task, "envpool", 500_000, tmp_path, "a2c_minigrid")
+
     # a run on envpool: envpool's layouts' results, else minigrid's envs'
-    on_envpool = measured_comparison(
-        f"{task}@envpool", 500_000, tmp_path, "a2c_minigrid"
+    assert on_envpool().startswith(f"Measured on {task} at") and "noise" in on_envpool()
+    _committed(tmp_path, "pool", "a2c_minigrid", [("vae", 0.93)], backend="envpool")
+    assert on_envpool().startswith(f"Measured on {task} (envpool) at")
+    assert "pool" in on_envpool()
+    # the summary's task and backend columns pick the rows, not the env id alone:
+    # a run on minigrid's envs is never shown envpool's results
+    gymnasium = measured_comparison(
+        task, "gymnasium", 500_000, tmp_path, "a2c_minigrid"
     )
-    assert on_envpool.startswith(f"Measured on {task} at") and "noise" in on_envpool
-    _committed(
-        tmp_path, "pool", "a2c_minigrid", [("vae", 0.93)], task=f"{task}@envpool"
-    )
-    on_envpool = measured_comparison(
-        f"{task}@envpool", 500_000, tmp_path, "a2c_minigrid"
-    )
-    assert on_envpool.startswith(f"Measured on {task}@envpool") and "pool" in on_envpool
+    assert "pool" not in gymnasium.splitlines()[0] and "(envpool)" not in gymnasium
     # the plain learner measured on minigrid's envs beats no plain learner on envpool
     _committed(tmp_path, "main", "a2c_minigrid", [("none", 0.0), ("vae", 0.9)])
-    on_envpool = measured_comparison(
-        f"{task}@envpool", 500_000, tmp_path, "a2c_minigrid"
-    )
-    assert on_envpool.startswith(f"Measured on {task} at") and "main" in on_envpool
-    assert "none (plain learner)" in on_envpool
+    assert on_envpool().startswith(f"Measured on {task} at") and "main" in on_envpool()
+    assert "none (plain learner)" in on_envpool()
     (tmp_path / "main" / "runs_meta.csv").unlink()
     # an experiment whose runs' recipe is unknown (no runs_meta.csv) is not shown
     (tmp_path / "pool" / "runs_meta.csv").unlink()
-    assert (
-        "@envpool"
-        not in measured_comparison(f"{task}@envpool", 500_000, tmp_path, "a2c_minigrid")
-        .splitlines()[0]
-        .split(" at ")[0]
-    )
+    assert "(envpool)" not in on_envpool().splitlines()[0]
 
 
 def test_all_regenerates_every_experiment_of_a_results_dir(sweep, tmp_path):
@@ -718,7 +739,7 @@ def test_the_data_is_an_xz_csv_and_earlier_plain_data_is_read_and_replaced(
 
     xz = (sweep["out"] / "runs.csv.xz").read_bytes()
     plain = lzma.decompress(xz)  # a CSV any tool reads, compressed
-    assert plain.startswith(b"task,setting,seed,frames,metric,value\n")
+    assert plain.startswith(b"task,backend,setting,seed,frames,metric,value\n")
     assert len(xz) < len(plain) / 5
     # data committed before as a plain runs.csv: read, and its directory's data
     # rewritten as the compressed file with the same bytes inside
@@ -895,8 +916,11 @@ def test_a_damaged_log_line_is_named(tmp_path, capsys):
     assert f"{log}, line 2: 'line' is not a 'step,value' row" in capsys.readouterr().err
 
 
-def test_envpool_runs_are_their_own_task_normalised_by_envpools_oracle(tmp_path):
-    # the same env id on both backends: two tasks, each with its own oracle row
+def test_one_env_id_on_two_backends_is_two_tasks_each_normalised_by_its_oracle(
+    tmp_path, monkeypatch, capsys
+):
+    # the same env id on both backends: two tasks, the backend column telling them
+    # apart, each normalised by its own oracle row
     for backend, final in (("gymnasium", 0.4), ("envpool", 0.6)):
         for seed in (0, 1):
             config = {
@@ -914,29 +938,103 @@ def test_envpool_runs_are_their_own_task_normalised_by_envpools_oracle(tmp_path)
                 {"train/episode_return": rows, "eval/episode_return": rows},
             )
     minigrid_oracle, envpool_oracle = tmp_path / "a.csv", tmp_path / "b.csv"
-    pd.DataFrame({"env": [MINIGRID], "mean_return": [0.8]}).to_csv(
-        minigrid_oracle, index=False
-    )
-    pd.DataFrame({"env": [f"{MINIGRID}@envpool"], "mean_return": [0.6]}).to_csv(
-        envpool_oracle, index=False
-    )
+    pd.DataFrame(
+        {"env": [MINIGRID], "backend": ["gymnasium"], "mean_return": [0.8]}
+    ).to_csv(minigrid_oracle, index=False)
+    pd.DataFrame(
+        {"env": [MINIGRID], "backend": ["envpool"], "mean_return": [0.6]}
+    ).to_csv(envpool_oracle, index=False)
+    titles = []
+
+    def save(fig, path, title):  # the figures' panel titles, instead of the files
+        titles.append([ax.get_title() for ax in fig.axes if ax.get_visible()])
+        return path
+
+    monkeypatch.setattr("results.aggregate._save", save)
     out = tmp_path / "out"
     argv = [str(tmp_path / "runs"), "--out", str(out), "--reps", str(REPS)]
     assert main([*argv, "--oracle", str(minigrid_oracle), str(envpool_oracle)]) == 0
-    summary = read(out, "summary.csv").set_index("task")
-    assert set(summary.index) == {MINIGRID, f"{MINIGRID}@envpool"}
-    assert summary.loc[MINIGRID, "oracle_return"] == pytest.approx(0.8)
-    assert summary.loc[MINIGRID, "train_return_mean"] == pytest.approx(0.5)
-    assert summary.loc[f"{MINIGRID}@envpool", "train_return_mean"] == pytest.approx(1.0)
-    # one env id in two oracle tables is ambiguous: refused, naming the table
+    assert f"{MINIGRID} (envpool)  vae: 2 seeds" in capsys.readouterr().out
+    summary = read(out, "summary.csv").set_index(["task", "backend"])
+    # the env id alone in the task column, gymnasium's row first
+    assert summary.index.tolist() == [(MINIGRID, "gymnasium"), (MINIGRID, "envpool")]
+    assert summary.loc[(MINIGRID, "gymnasium"), "oracle_return"] == pytest.approx(0.8)
+    assert summary.loc[(MINIGRID, "gymnasium"), "train_return_mean"] == 0.5
+    assert summary.loc[(MINIGRID, "envpool"), "oracle_return"] == pytest.approx(0.6)
+    assert summary.loc[(MINIGRID, "envpool"), "train_return_mean"] == 1.0
+    # every table has the backend column right after the task
+    for name in (
+        "runs.csv.xz",
+        "runs_meta.csv",
+        "summary.csv",
+        "final_scores.csv",
+        "frames_to_threshold.csv",
+        "probability_of_improvement.csv",
+        "report.csv",
+    ):
+        table = read(out, name)
+        assert table.columns[:2].tolist() == ["task", "backend"], name
+        if len(table):  # one setting per task: no probability of improvement
+            assert table["backend"].unique().tolist() == ["gymnasium", "envpool"]
+    assert read(out, "report.csv")["task"].unique().tolist() == ["Fake-v0"]
+    status = (out / "status.rst").read_text()
+    assert f"setting: {MINIGRID} vae 2, {MINIGRID} (envpool) vae 2." in status
+    # a panel names the env id, and the backend where it is not gymnasium
+    assert titles[0] == [MINIGRID, f"{MINIGRID} (envpool)"]
+    assert titles[1] == [
+        f"{MINIGRID} at 10000 frames",
+        f"{MINIGRID} (envpool) at 10000 frames",
+    ]
+    # one task in two oracle tables is ambiguous: refused, naming the table
     with pytest.raises(ValueError, match="another table"):
         read_oracle(minigrid_oracle, minigrid_oracle)
     # and twice in one table (several action noises of one task): refused too
-    pd.DataFrame({"env": [MINIGRID] * 2, "mean_return": [0.8, 0.7]}).to_csv(
-        minigrid_oracle, index=False
-    )
+    pd.DataFrame(
+        {"env": [MINIGRID] * 2, "backend": "gymnasium", "mean_return": [0.8, 0.7]}
+    ).to_csv(minigrid_oracle, index=False)
     with pytest.raises(ValueError, match="is twice .* one --oracle file per noise"):
         read_oracle(minigrid_oracle)
+
+
+def test_a_table_without_a_backend_column_is_refused_saying_how_to_regenerate(
+    sweep, tmp_path, capsys
+):
+    # tables written before the backend column existed: refused, not guessed at
+    out = tmp_path / "old"
+    out.mkdir()
+    data = read(sweep["out"], "runs.csv.xz")
+    data.drop(columns="backend").to_csv(out / "runs.csv.xz", index=False)
+    common = ["--out", str(tmp_path / "new"), "--oracle", str(sweep["oracle"])]
+    with pytest.raises(SystemExit):
+        main(["--from-data", str(out / "runs.csv.xz"), *common])
+    err = capsys.readouterr().err
+    expected = "task,backend,setting,seed,frames,metric,value"
+    assert (
+        f"{out / 'runs.csv.xz'} has no backend column: expected the columns {expected}"
+        in err
+    )
+    assert (
+        "regenerate it with recipes/results/aggregate.py from the run directories"
+        in err
+    )
+    # its runs_meta.csv too, beside data that has the column
+    data.to_csv(out / "runs.csv.xz", index=False)
+    meta = read(sweep["out"], "runs_meta.csv").drop(columns="backend")
+    meta.to_csv(out / "runs_meta.csv", index=False)
+    with pytest.raises(SystemExit):
+        main(["--from-data", str(out / "runs.csv.xz"), *common])
+    assert f"{out / 'runs_meta.csv'} has no backend column" in capsys.readouterr().err
+    # and an oracle table
+    legacy = tmp_path / "oracle.csv"
+    pd.DataFrame({"env": [MINIGRID], "mean_return": [0.8]}).to_csv(legacy, index=False)
+    with pytest.raises(ValueError) as refused:
+        read_oracle(legacy)
+    message = str(refused.value)
+    assert (
+        "has no backend column: expected the columns env,backend,mean_return" in message
+    )
+    assert "recipes/results/oracle.py" in message
+    assert not (tmp_path / "new" / "summary.csv").exists()
 
 
 def test_label_keys_tell_apart_runs_of_one_setting(tmp_path, capsys):

@@ -578,8 +578,13 @@ def test_oracle_table_and_cli(tmp_path, capsys):
     assert "MiniGrid-DoorKey-5x5-v0" in capsys.readouterr().out
     with out.open() as file:
         reader = csv.DictReader(file)
-        assert tuple(reader.fieldnames) == ORACLE_CSV_COLUMNS
+        # the backend whose layouts were solved, after the env id: minigrid's
+        assert tuple(reader.fieldnames) == ("env", "backend", *ORACLE_CSV_COLUMNS[1:])
         (written,) = list(reader)
+    assert (written["env"], written["backend"]) == (
+        "MiniGrid-DoorKey-5x5-v0",
+        "gymnasium",
+    )
     solutions = oracle_returns("MiniGrid-DoorKey-5x5-v0", range(4))
     mean = sum(s.episode_return for s in solutions) / 4
     assert float(written["mean_return"]) == pytest.approx(mean, abs=1e-4)
@@ -588,6 +593,25 @@ def test_oracle_table_and_cli(tmp_path, capsys):
     # A return of 0.8 on a 250-step task: 1 - 0.9 * t / 250 = 0.8.
     assert rows[0]["return_at_0.8_steps"] == pytest.approx(250 * 0.2 / 0.9)
     assert _minigrid_return(return_to_steps(0.8, 250), 250) == pytest.approx(0.8)
+
+
+def test_a_table_of_envpools_layouts_is_read_as_the_oracle_of_envpool_runs(tmp_path):
+    # the writer's backend column is what the aggregation keys the oracle by:
+    # (env id, backend), the env id never suffixed
+    from results.aggregate import read_oracle
+    from results.oracle import write_oracle_csv
+
+    rows = oracle_table(["MiniGrid-DoorKey-5x5-v0"], 2)
+    minigrid = write_oracle_csv(rows, tmp_path / "minigrid.csv")
+    envpool = write_oracle_csv(
+        [{**rows[0], "mean_return": 0.5}], tmp_path / "envpool.csv", backend="envpool"
+    )
+    assert read_oracle(minigrid, envpool) == {
+        ("MiniGrid-DoorKey-5x5-v0", "gymnasium"): round(rows[0]["mean_return"], 4),
+        ("MiniGrid-DoorKey-5x5-v0", "envpool"): 0.5,
+    }
+    with pytest.raises(ValueError, match="start with env"):
+        write_oracle_csv(rows, tmp_path / "x.csv", ("seeds", "env"))
 
 
 # The hard-exploration suite's tasks --------------------------------------------------
@@ -870,8 +894,10 @@ def test_noisy_oracle_table_and_cli(tmp_path, capsys):
     assert "fraction_of_noise_free" in capsys.readouterr().out
     with out.open() as file:
         reader = csv.DictReader(file)
-        assert tuple(reader.fieldnames) == NOISY_ORACLE_CSV_COLUMNS
+        columns = ("env", "backend", *NOISY_ORACLE_CSV_COLUMNS[1:])
+        assert tuple(reader.fieldnames) == columns
         written = list(reader)
+    assert {row["backend"] for row in written} == {"gymnasium"}
     assert [float(row["action_noise"]) for row in written] == [0.1, 0.2]
     env = gym.make("MiniGrid-DoorKey-5x5-v0")
     per_seed = []

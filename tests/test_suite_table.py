@@ -1,12 +1,13 @@
 """The suite's table on two fake suite experiments aggregated by aggregate.py.
 
-Task ``MiniGrid-KeyCorridorS3R3-v0@envpool`` (oracle 0.5, budget 1000 frames):
+Both tasks ran on envpool (the ``backend`` column of every table). Task
+``MiniGrid-KeyCorridorS3R3-v0`` (oracle 0.5, budget 1000 frames):
 ``vae_a`` ends every seed at 0.95 of the oracle, ``vae_u_untrained`` at 1.0,
 ``vae_b`` one seed at 0.95 and two at 0.5, ``vae_a_untrained`` (``vae_a``'s
 control) at 0.5, ``e3b`` at 0.2, ``e3b_128`` at 0.97, ``none`` at 0, 3 seeds
 each, and one screening seed of ``vae_s`` at 0.99, every run a straight ramp (so a seed's moving return crosses 0.9 of the
 oracle at frames ``1000 * 0.9 / final``). Task
-``MiniGrid-DoorKey-16x16-v0@envpool`` (no oracle: scored by its success rate,
+``MiniGrid-DoorKey-16x16-v0`` (no oracle: scored by its success rate,
 budget 2000) has one seed of ``none``, ``vae_a`` (ending at a success rate of 0.5),
 ``vae_a_untrained`` (0.4) and ``noveld`` (at 0.6), and one of ``e3b`` killed at half
 the budget.
@@ -30,7 +31,8 @@ from results.suite import (
     write_suite,
 )
 
-S3R3, D16 = "MiniGrid-KeyCorridorS3R3-v0@envpool", "MiniGrid-DoorKey-16x16-v0@envpool"
+S3R3, D16 = "MiniGrid-KeyCorridorS3R3-v0", "MiniGrid-DoorKey-16x16-v0"
+BACKEND = "envpool"
 ORACLE = {S3R3: 0.5}
 FINALS = {
     S3R3: {
@@ -67,6 +69,7 @@ def _runs_csv(path: Path, task: str) -> None:
     rows = [
         {
             "task": task,
+            "backend": BACKEND,
             "setting": setting,
             "seed": seed,
             "frames": frames,
@@ -91,7 +94,12 @@ def suite(tmp_path_factory) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("suite")
     oracle = root / "oracle.csv"
     pd.DataFrame(
-        {"env": list(ORACLE), "seeds": 10, "mean_return": list(ORACLE.values())}
+        {
+            "env": list(ORACLE),
+            "backend": BACKEND,
+            "seeds": 10,
+            "mean_return": list(ORACLE.values()),
+        }
     ).to_csv(oracle, index=False)
     dirs = []
     for task in (S3R3, D16):
@@ -328,12 +336,16 @@ def test_a_task_from_two_experiments_is_refused(suite, tmp_path):
         write_suite([suite["dirs"][0], copy], tmp_path / "out")
     with pytest.raises(SuiteInputError, match="given twice"):
         write_suite([suite["dirs"][0], suite["dirs"][0]], tmp_path / "out")
-    # the same task on the other backend: one name in the tables, two env ids
+    # the same env id on the other backend: one name in the tables, two tasks
     summary = read(copy, "summary.csv")
-    summary["task"] = summary["task"].str.removesuffix("@envpool")
+    summary["backend"] = "gymnasium"
     summary.to_csv(copy / "summary.csv", index=False)
-    with pytest.raises(SuiteInputError, match="S3R3-v0 in .*S3R3-v0@envpool in"):
+    with pytest.raises(SuiteInputError, match=r"S3R3-v0 \(envpool\) in .*S3R3-v0 in"):
         write_suite([suite["dirs"][0], copy], tmp_path / "out")
+    # a summary without the backend column is refused, naming what is expected
+    summary.drop(columns="backend").to_csv(copy / "summary.csv", index=False)
+    with pytest.raises(SuiteInputError, match="lacks the columns \\['backend'\\]"):
+        write_suite([copy], tmp_path / "out")
 
 
 def test_a_directory_without_a_summary_is_named(tmp_path, capsys):

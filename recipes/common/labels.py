@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Any
 
 __all__ = [
-    "ENVPOOL_SUFFIX",
     "GYMNASIUM",
     "LEVEL_KEY",
     "split_level",
@@ -24,7 +23,6 @@ __all__ = [
     "run_backend",
     "run_labels",
     "setting_label",
-    "task_label",
     "task_name",
 ]
 
@@ -82,29 +80,6 @@ def task_name(task: str, backend: str) -> str:
         'MiniGrid-DoorKey-8x8-v0 (envpool)'
     """
     return task if backend == GYMNASIUM else f"{task} ({backend})"
-
-
-#: What :func:`task_label` appends to the env id of a run on envpool's MiniGrid.
-ENVPOOL_SUFFIX = "@envpool"
-
-
-def task_label(config: Mapping) -> str:
-    """The task of a run: ``env.name``, with :data:`ENVPOOL_SUFFIX` on envpool.
-
-    envpool's MiniGrid is the same task with its own layout for a seed, so its
-    runs are another task here: never pooled with minigrid's runs of the env id,
-    and normalised by the oracle over envpool's layouts (the oracle table's row
-    for ``<env id>@envpool``).
-
-    Examples:
-        >>> task_label({"env": {"name": "MiniGrid-DoorKey-8x8-v0"}})
-        'MiniGrid-DoorKey-8x8-v0'
-        >>> task_label({"env": {"name": "MiniGrid-DoorKey-8x8-v0", "backend": "envpool"}})
-        'MiniGrid-DoorKey-8x8-v0@envpool'
-    """
-    env = config.get("env") or {}
-    name = str(env.get("name"))
-    return name + ENVPOOL_SUFFIX if env.get("backend") == "envpool" else name
 
 
 def setting_label(config: Mapping, overrides: Sequence[str] | None) -> str:

@@ -25,7 +25,7 @@ from torchrl.objectives.value import GAE
 from common.bonuses import BONUSES
 from common.checkpoint import DamagedCheckpoint, find_checkpoint, load_checkpoint
 from common.errors import ConfigError
-from common.labels import ENVPOOL_SUFFIX, split_level
+from common.labels import GYMNASIUM, split_level, task_name
 from torchrl_surprise import (
     IntrinsicValueLoss,
     TwoStreamAdvantage,
@@ -492,6 +492,7 @@ def oracle_optimum(env_name: str, seed: int, stochasticity: int = 0):
 
 def measured_comparison(
     task: str,
+    backend: str,
     frames: int,
     results_dir: str | os.PathLike,
     recipe: str,
@@ -499,23 +500,26 @@ def measured_comparison(
     run_return: float | None = None,
 ) -> str:
     """A run's closing lines: the run beside the plain learner and the best
-    setting measured on its task, from one committed summary; ``""`` if none.
+    setting measured on its task (env id ``task`` on ``backend``), from one
+    committed summary; ``""`` if none.
 
     The summary is :func:`committed_summary`'s; scores are its IQM [95% CI]
     over seeds of the final return over the oracle's (raw where it has no oracle),
     and ``run_return`` (this run's final 100-episode mean) on the same scale.
 
     Examples:
-        >>> measured_comparison("MiniGrid-DoorKey-5x5-v0", 123, ".", "a2c_minigrid")
+        >>> measured_comparison("MiniGrid-DoorKey-5x5-v0", "envpool", 123, ".",
+        ...                     "a2c_minigrid")
         ''
     """
-    found = committed_summary(task, frames, results_dir, recipe, stochasticity)
+    found = committed_summary(task, backend, frames, results_dir, recipe, stochasticity)
     if found is None:
         return ""
     path, rows = found
     oracle = float(rows[0]["oracle_return"] or "nan")
     scale = "return / oracle" if oracle == oracle else "return"
-    measured = rows[0]["task"]  # the run's task, or minigrid's envs' of its id
+    # the run's task, or minigrid's envs' of its id
+    measured = task_name(rows[0]["task"], rows[0]["backend"])
     if path.is_relative_to(Path.cwd()):
         path = path.relative_to(Path.cwd())
     lines = [
@@ -547,24 +551,27 @@ def measured_comparison(
 
 def committed_summary(
     task: str,
+    backend: str,
     frames: int,
     results_dir: str | os.PathLike,
     recipe: str,
     stochasticity: int = 0,
 ) -> tuple[Path, list[dict]] | None:
-    """The committed ``summary.csv`` that measured ``task`` at ``frames``, and its rows.
+    """The committed ``summary.csv`` that measured ``task`` on ``backend`` at
+    ``frames``, and its rows.
 
     Among the experiments under ``results_dir`` whose runs all came from
-    ``runs/<recipe>/`` (their ``runs_meta.csv``: the run's own learner), the rows of
-    ``task`` at a budget within 1% of ``frames`` and at the noise level
-    ``stochasticity``; a run on envpool (``<id>@envpool``) is also shown
-    minigrid's envs' of the same id. Of those, the experiment that measured the
+    ``runs/<recipe>/`` (their ``runs_meta.csv``: the run's own learner), the rows
+    whose ``task`` and ``backend`` columns are the run's, at a budget within 1%
+    of ``frames`` and at the noise level ``stochasticity``; a run on another
+    backend than gymnasium (envpool) is also shown minigrid's envs' rows of the
+    same env id. Of those, the experiment that measured the
     plain learner, then the run's own backend, then the most settings, the first
     by name among equals. ``None`` when nothing was measured.
     """
     import csv
 
-    def rows_of(path: Path, label: str) -> list[dict]:
+    def rows_of(path: Path, on: str) -> list[dict]:
         meta = path.parent / "runs_meta.csv"
         if not meta.exists():
             return []
@@ -576,7 +583,8 @@ def committed_summary(
             return [
                 row
                 for row in csv.DictReader(f)
-                if row.get("task") == label
+                if row.get("task") == task
+                and row.get("backend") == on
                 and row.get("budget")
                 and abs(float(row["budget"]) - frames) <= 0.01 * frames
                 and split_level(row["setting"])[1] == stochasticity
@@ -588,10 +596,10 @@ def committed_summary(
         return plain, own, len(rows)
 
     summaries = sorted(Path(results_dir).glob("*/summary.csv"))
-    labels = dict.fromkeys([task, task.removesuffix(ENVPOOL_SUFFIX)])
+    backends = dict.fromkeys([backend, GYMNASIUM])
     found = [
-        (label == task, path, rows_of(path, label))
-        for label in labels
+        (on == backend, path, rows_of(path, on))
+        for on in backends
         for path in summaries
     ]
     found = [item for item in found if item[2]]

@@ -50,7 +50,6 @@ from common.checkpoint import RunCounters
 from common.config import validate_minigrid
 from common.errors import ConfigError, report_mistakes
 from common.evaluation import EVAL_SEED_OFFSET, EpisodeStats, evaluate
-from common.labels import task_label
 from common.minigrid import (
     bonus_update_steps,
     inverse_head,
@@ -403,7 +402,8 @@ def finish(cfg, run: TrainingRun, t: Training, frames: int, fps: float) -> None:
         )
         print(f"Video: {video}")
     measured = measured_comparison(
-        task_label(cfg),
+        cfg.env.name,
+        cfg.env.backend,
         cfg.collector.total_frames,
         Path(__file__).resolve().parents[2] / "docs" / "results",
         f"{algo}_minigrid",

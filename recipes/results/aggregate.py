@@ -32,7 +32,8 @@ drop otherwise)::
         vae_elliptical_from_n3s4 vae_elliptical_from_n3s4_frozen \\
         vae_elliptical_untrained --out docs/results/ppo_transfer_n4s4
 
-``--tasks T [T ...]`` does the same for tasks (env ids).
+``--tasks T [T ...]`` does the same for tasks (env ids), ``--backends B [B ...]``
+for the backends they ran on.
 
 ``--all docs/results`` does that for every experiment under ``docs/results`` (each
 directory holding a ``runs.csv.xz``, at the budget its ``summary.csv`` was written
@@ -49,8 +50,15 @@ bootstrap, default 0) and ``--max-points`` (points kept per run and metric in
 ``collector.total_frames``, ``env.backend`` and an optional top-level ``setting``). Its scalars are
 the files of TorchRL's ``CSVLogger``, ``<run>/logs/<algo>/scalars/<group>/<name>.csv``
 (rows ``step,value``, the step in environment frames). The **task** of a run is
-``env.name``, as ``<env id>@envpool`` for a run on envpool (:func:`task_label`); its **setting** is the config's ``setting`` when that is a non-empty
-string, else the Hydra overrides of ``.hydra/overrides.yaml`` minus ``seed``,
+the pair of its env id (``env.name``, the ``task`` column) and its **backend**
+(``env.backend``, the ``backend`` column: ``gymnasium`` for minigrid's Python
+envs and for a config without one, ``envpool`` for its C++ port, whose layouts
+for a seed differ): a run on envpool is never pooled with minigrid's runs of the
+env id, and is normalised by the oracle over envpool's layouts. Every table
+below has the ``backend`` column right after ``task``; a text or a figure names
+a task by its env id, followed by its backend in parentheses when that is not
+gymnasium (:func:`task_name`). A run's **setting** is the config's ``setting``
+when that is a non-empty string, else the Hydra overrides of ``.hydra/overrides.yaml`` minus ``seed``,
 ``env.name``, ``+experiment``, ``experiment_name``, ``resume``,
 ``resume_without_logs``, ``torch_threads``, ``hydra.*``, ``logger.*``, ``eval.*`` and ``checkpoint.*`` (they
 name the run or change what it reports, not what it learns), sorted and joined
@@ -59,16 +67,18 @@ resumed run) keeps its last value; non-finite values (a moving mean before the
 first episode ended) are dropped. A run that stopped early is kept up to where it
 got and marked unfinished.
 
-**Normalisation.** With ``--oracle`` (a CSV with columns ``env`` and
-``mean_return``, such as ``recipes/results/oracle.py`` writes), the episode
-returns of a task are divided by its oracle mean return; tasks absent from the
-file (MuJoCo) stay unnormalised, which the ``normalized`` column and the command's
-output say.
+**Normalisation.** With ``--oracle`` (CSVs with columns ``env``, ``backend``
+and ``mean_return``, such as ``recipes/results/oracle.py`` writes), the episode
+returns of a task are divided by the oracle mean return of its env id on its
+backend; tasks absent from the files (MuJoCo) stay unnormalised, which the
+``normalized`` column and the command's output say. An input table (``runs.csv.xz``,
+``runs_meta.csv`` or an oracle table) without a ``backend`` column is refused,
+saying how to regenerate it.
 
 **Outputs** (in ``--out``):
 
 - ``runs.csv.xz``: the committed per-run data, an xz-compressed CSV
-  ``task,setting,seed,frames,metric,value`` (``xzcat``, ``pandas.read_csv`` and
+  ``task,backend,setting,seed,frames,metric,value`` (``xzcat``, ``pandas.read_csv`` and
   every CSV tool read it; xz keeps a study's curves at about a twentieth of the
   plain CSV, and its bytes depend on the data alone, so a regenerated file is
   the committed one) for the metrics of :data:`METRICS` a run logged, at most ``--max-points`` points
@@ -76,14 +86,14 @@ output say.
   (unnormalised) values. Everything below is computed from this file alone, so
   frame counts (first crossings) have the resolution of the kept points, about
   ``total_frames / max_points``.
-- ``runs_meta.csv``: ``task,setting,seed,total_frames,last_frame,finished,run_dir``.
+- ``runs_meta.csv``: ``task,backend,setting,seed,total_frames,last_frame,finished,run_dir``.
   A run is finished when its ``status.json`` says so (the run writes it with each
   checkpoint: ``common.status.write_run_status``); a run directory without one
   (written before it existed) is finished when it logged its last point less
   than one logging period (the median gap between its logged steps) before
   ``collector.total_frames``: the recipes log every few updates, so the last
   logged step of a complete run falls short of the target by up to one period.
-- ``summary.csv``: one row per task and setting: ``task, setting, normalized,
+- ``summary.csv``: one row per task and setting: ``task, backend, setting, normalized,
   oracle_return, budget, seeds, seeds_unfinished, seeds_short_of_budget``; for each
   metric ``train_return``, ``train_success``, ``eval_return``, ``eval_success``
   the value at the last logged step at or before the budget, aggregated over seeds:
@@ -95,15 +105,15 @@ output say.
   counting a seed that never did (up to the budget) as infinitely late, so it reads
   ``not reached`` when half the seeds or more never got there.
 - ``final_scores.csv``: per run, the scores ``summary.csv`` aggregates: ``task,
-  setting, seed, metric, budget, frames, value``, each metric's value at its last
+  backend, setting, seed, metric, budget, frames, value``, each metric's value at its last
   logged step at or before the budget (``frames``), returns divided by the oracle's
   (:func:`final_scores`). A report quoting one seed's score reads it here.
-- ``frames_to_threshold.csv``: per seed, ``task, setting, seed, fraction, frames,
-  searched_to``; ``frames`` is empty when the fraction was not reached by
+- ``frames_to_threshold.csv``: per seed, ``task, backend, setting, seed, fraction,
+  frames, searched_to``; ``frames`` is empty when the fraction was not reached by
   ``searched_to`` (the run's last frame or the budget, whichever is first).
 - ``probability_of_improvement.csv``: per task and ordered pair of settings,
-  ``task, budget, setting_x, setting_y, seeds_x, seeds_y, probability, ci_low,
-  ci_high``: P(a seed of X ends above a seed of Y) on the final (normalised)
+  ``task, backend, budget, setting_x, setting_y, seeds_x, seeds_y, probability,
+  ci_low, ci_high``: P(a seed of X ends above a seed of Y) on the final (normalised)
   ``train/episode_return`` (rliable, Mann-Whitney U), with a 95% bootstrap CI.
 - ``curves.png``: per task, the IQM over seeds of the (normalised)
   ``train/episode_return`` against frames with a 95% stratified-bootstrap band;
@@ -115,7 +125,8 @@ output say.
   label then ending in ``,env.stochasticity=L``): per task, the final return's IQM
   and CI against the noise level, one line per setting (Figure 2).
 
-Every bootstrap is seeded by ``--seed`` and the name of what it estimates, so a
+Every bootstrap is seeded by ``--seed`` and the name of what it estimates (a task
+on another backend than gymnasium named by :func:`bootstrap_task_name`), so a
 rerun writes identical CSVs, and adding a setting leaves the intervals of the
 others unchanged (rliable 1.2 resamples with NumPy's global generator whatever its
 ``random_state``: each estimate seeds it, then restores its previous state). The IQM is the 25% trimmed
@@ -145,14 +156,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from common.labels import (  # noqa: F401
     _NOT_SETTING,
     _NOT_SETTING_SECTIONS,
-    ENVPOOL_SUFFIX,
+    GYMNASIUM,
     LEVEL_KEY,
     add_label_keys,
     add_label_keys_argument,
     read_overrides,
+    run_backend,
     setting_label,
     split_level,
-    task_label,
+    task_name,
 )
 from common.scalar_logs import read_scalar_csv
 from common.status import read_run_status
@@ -163,8 +175,10 @@ __all__ = [
     "FRACTIONS",
     "LEVEL_KEY",
     "METRICS",
+    "TASK_KEYS",
     "RunInfo",
     "aggregate",
+    "bootstrap_task_name",
     "extract_run_data",
     "final_scores",
     "find_runs",
@@ -181,7 +195,6 @@ __all__ = [
     "plot_profiles",
     "probability_of_improvement",
     "read_oracle",
-    "task_label",
     "report_table",
     "status_text",
     "runs_metadata",
@@ -189,6 +202,7 @@ __all__ = [
     "setting_label",
     "split_level",
     "summarize",
+    "task_name",
     "unfinished_runs",
     "write_runs_file",
 ]
@@ -213,7 +227,9 @@ EPISODES_METRIC = "train/episodes"
 #: ``logger.episode_window``).
 EPISODE_WINDOW = 100
 
-_RUN_KEYS = ["task", "setting", "seed"]
+#: The columns that identify a task: its env id and the backend it ran on.
+TASK_KEYS = ["task", "backend"]
+_RUN_KEYS = [*TASK_KEYS, "setting", "seed"]
 #: The name of the per-run data file an aggregation writes.
 RUNS_FILE = "runs.csv.xz"
 #: The names it is read under: the compressed file, or a plain CSV of earlier data.
@@ -222,7 +238,50 @@ RUNS_FILES = (RUNS_FILE, "runs.csv")
 FIGURES = ("curves.png", "performance_profiles.png", "levels.png")
 #: The columns of ``runs.csv.xz``.
 _DATA_COLUMNS = [*_RUN_KEYS, "frames", "metric", "value"]
+#: The columns of ``runs_meta.csv``.
+_META_COLUMNS = [*_RUN_KEYS, "total_frames", "last_frame", "finished", "run_dir"]
 _NOT_REACHED = "not reached"
+
+
+def _task_order(task: str, backend: str) -> tuple[str, bool, str]:
+    # The tables' order of tasks: by env id, the env id on gymnasium before it on
+    # another backend (those by name).
+    return task, backend != GYMNASIUM, backend
+
+
+def _gymnasium_first(column: pd.Series) -> pd.Series:
+    # sort_values' key for _task_order: gymnasium, as "", sorts before any backend
+    return column.where(column != GYMNASIUM, "") if column.name == "backend" else column
+
+
+def _in_task_order(table: pd.DataFrame, by: Sequence[str] = TASK_KEYS) -> pd.DataFrame:
+    """``table`` sorted by ``by`` (starting with :data:`TASK_KEYS`), its tasks in
+    the tables' order (:func:`_task_order`); rows that tie keep their order."""
+    table = table.sort_values(list(by), key=_gymnasium_first, kind="mergesort")
+    return table.reset_index(drop=True)
+
+
+def _tasks(table: pd.DataFrame) -> list[tuple[str, str]]:
+    """The tasks (env id, backend) of a table, in the tables' order."""
+    pairs = table[TASK_KEYS].drop_duplicates().itertuples(index=False, name=None)
+    return sorted(pairs, key=lambda pair: _task_order(*pair))
+
+
+def bootstrap_task_name(task: str, backend: str) -> str:
+    """The name of a task in the seed of its bootstraps (:func:`iqm_interval`'s
+    ``names``): the env id, followed by ``@<backend>`` on another backend than
+    gymnasium.
+
+    It is the name committed studies' bootstraps were seeded with (their task
+    column read so before it had a backend column), so their intervals are
+    unchanged. A name for the seed only, never read back.
+
+    Examples:
+        >>> [bootstrap_task_name("MiniGrid-Empty-5x5-v0", backend)
+        ...  for backend in ("gymnasium", "envpool")]
+        ['MiniGrid-Empty-5x5-v0', 'MiniGrid-Empty-5x5-v0@envpool']
+    """
+    return task if backend == GYMNASIUM else f"{task}@{backend}"
 
 
 @dataclass(frozen=True)
@@ -232,6 +291,7 @@ class RunInfo:
     Attributes:
         path (Path): the run directory (it holds ``config_resolved.yaml``).
         task (str): the config's ``env.name``.
+        backend (str): where it ran, the config's ``env.backend`` (:func:`run_backend`).
         setting (str): the label of the run's setting (:func:`setting_label`).
         seed (int): the config's ``seed``.
         total_frames (int | None): the config's ``collector.total_frames``.
@@ -241,6 +301,7 @@ class RunInfo:
 
     path: Path
     task: str
+    backend: str
     setting: str
     seed: int
     total_frames: int | None
@@ -277,7 +338,8 @@ def _read_run(run_dir: Path, label_keys: Sequence[str] = ()) -> RunInfo:
     )
     return RunInfo(
         path=run_dir,
-        task=task_label(config),
+        task=str(task),
+        backend=run_backend(config),
         setting=setting,
         seed=int(seed),
         total_frames=None if total_frames is None else int(total_frames),
@@ -300,7 +362,8 @@ def find_runs(
     Raises:
         FileNotFoundError: a path does not exist, or no run directory (a folder
             holding ``config_resolved.yaml``) is under any of them.
-        ValueError: two run directories are the same task, setting and seed, or
+        ValueError: two run directories are the same task (env id and backend),
+            setting and seed, or
             a run's config has no value for one of ``label_keys``.
 
     Examples:
@@ -322,14 +385,15 @@ def find_runs(
         )
     runs = sorted(
         (_read_run(d, label_keys) for d in run_dirs),
-        key=lambda r: (r.task, r.setting, r.seed),
+        key=lambda r: (*_task_order(r.task, r.backend), r.setting, r.seed),
     )
-    seen: dict[tuple[str, str, int], Path] = {}
+    seen: dict[tuple[str, str, str, int], Path] = {}
     for run in runs:
-        key = (run.task, run.setting, run.seed)
+        key = (run.task, run.backend, run.setting, run.seed)
         if key in seen:
             raise ValueError(
-                f"{seen[key]} and {run.path} are both task {run.task}, setting "
+                f"{seen[key]} and {run.path} are both task "
+                f"{task_name(run.task, run.backend)}, setting "
                 f"{run.setting}, seed {run.seed}: pass only one of them, or tell "
                 "them apart with --label-keys KEY (a config key whose value "
                 "differs between them, e.g. env.num_envs)"
@@ -360,7 +424,7 @@ def _downsample(n: int, max_points: int) -> np.ndarray:
 
 
 def extract_run_data(runs: Sequence[RunInfo], max_points: int = 200) -> pd.DataFrame:
-    """The long table of ``runs.csv.xz``: ``task,setting,seed,frames,metric,value``.
+    """The long table of ``runs.csv.xz``: ``task,backend,setting,seed,frames,metric,value``.
 
     Reads the metrics of :data:`METRICS` and :data:`EPISODES_METRIC` that each
     run logged (a step logged twice
@@ -381,6 +445,7 @@ def extract_run_data(runs: Sequence[RunInfo], max_points: int = 200) -> pd.DataF
                 pd.DataFrame(
                     {
                         "task": run.task,
+                        "backend": run.backend,
                         "setting": run.setting,
                         "seed": run.seed,
                         "frames": steps[keep],
@@ -398,7 +463,8 @@ def extract_run_data(runs: Sequence[RunInfo], max_points: int = 200) -> pd.DataF
 def runs_metadata(runs: Sequence[RunInfo]) -> pd.DataFrame:
     """The table of ``runs_meta.csv``: one row per run, with its completion.
 
-    Columns ``task, setting, seed, total_frames, last_frame, finished, run_dir``.
+    Columns ``task, backend, setting, seed, total_frames, last_frame, finished,
+    run_dir``.
     ``last_frame`` is the last step any metric logged. A run is finished when its
     ``status.json`` says so (``common.status.read_run_status``; its budget is then
     ``total_frames``); without one (a run of an earlier release), when
@@ -429,6 +495,7 @@ def runs_metadata(runs: Sequence[RunInfo]) -> pd.DataFrame:
         rows.append(
             {
                 "task": run.task,
+                "backend": run.backend,
                 "setting": run.setting,
                 "seed": run.seed,
                 "total_frames": total_frames,
@@ -471,7 +538,8 @@ def merge_run_data(
         source (str): how to name ``earlier`` in an error.
 
     Returns:
-        The merged data and metadata tables, sorted by task, setting and seed.
+        The merged data and metadata tables, sorted by task (env id, then
+        backend: gymnasium first), setting and seed.
 
     Raises:
         ValueError: a new run got less far than the same run in ``earlier``.
@@ -479,13 +547,13 @@ def merge_run_data(
     Examples:
         >>> import pandas as pd
         >>> def run(seed, last):
-        ...     return pd.DataFrame({"task": "T", "setting": "s", "seed": seed,
-        ...         "frames": [0, last], "metric": "train/episode_return",
+        ...     return pd.DataFrame({"task": "T", "backend": "envpool", "setting": "s",
+        ...         "seed": seed, "frames": [0, last], "metric": "train/episode_return",
         ...         "value": [0.0, 1.0]})
         >>> def meta(seed, last):
-        ...     return pd.DataFrame({"task": ["T"], "setting": ["s"], "seed": [seed],
-        ...         "total_frames": [100], "last_frame": [last], "finished": [True],
-        ...         "run_dir": [f"runs/{seed}"]})
+        ...     return pd.DataFrame({"task": ["T"], "backend": ["envpool"],
+        ...         "setting": ["s"], "seed": [seed], "total_frames": [100],
+        ...         "last_frame": [last], "finished": [True], "run_dir": [f"runs/{seed}"]})
         >>> merged, merged_meta = merge_run_data(run(0, 100), meta(0, 100),
         ...                                      run(1, 100), meta(1, 100))
         >>> merged_meta["seed"].tolist()
@@ -493,7 +561,7 @@ def merge_run_data(
         >>> merge_run_data(merged, merged_meta, run(1, 50), meta(1, 50))
         Traceback (most recent call last):
         ...
-        ValueError: task T, setting s, seed 1: runs/1 reached frame 50, the earlier data 100: ...
+        ValueError: task T (envpool), setting s, seed 1: runs/1 reached frame 50, the earlier data 100: ...
     """
     columns = _DATA_COLUMNS
     for name, table in (("earlier", earlier), ("data", data)):
@@ -516,9 +584,10 @@ def merge_run_data(
         # a run directory that logged nothing yet reached no frame at all
         reached = new_reach.get(key, -1)
         if reached < old_reach[key]:
-            task, setting, seed = key
+            task, backend, setting, seed = key
             raise ValueError(
-                f"task {task}, setting {setting}, seed {seed}: {run_dirs[key]} "
+                f"task {task_name(task, backend)}, setting {setting}, seed {seed}: "
+                f"{run_dirs[key]} "
                 f"reached frame {reached}, {source} {old_reach[key]}: it would "
                 "replace a longer run; aggregate without that run directory"
             )
@@ -529,7 +598,7 @@ def merge_run_data(
     def merged(old: pd.DataFrame, new: pd.DataFrame) -> pd.DataFrame:
         table = pd.concat([kept(old), new], ignore_index=True)
         # stable: each run's rows keep their order
-        return table.sort_values(_RUN_KEYS, kind="mergesort").reset_index(drop=True)
+        return _in_task_order(table, _RUN_KEYS)
 
     merged_meta = merged(earlier_meta, meta)
     for column in ("total_frames", "last_frame"):
@@ -543,8 +612,9 @@ def keep_settings(
     """The runs of ``settings`` only: :func:`keep_runs` with ``settings`` alone.
 
     Examples:
-        >>> data = pd.DataFrame({"task": "T", "setting": ["a", "b", "c"], "seed": 0,
-        ...                      "frames": 128, "metric": "m", "value": 1.0})
+        >>> data = pd.DataFrame({"task": "T", "backend": "gymnasium",
+        ...     "setting": ["a", "b", "c"], "seed": 0, "frames": 128, "metric": "m",
+        ...     "value": 1.0})
         >>> keep_settings(data, None, ["a", "c"])[0]["setting"].tolist()
         ['a', 'c']
     """
@@ -557,29 +627,36 @@ def keep_runs(
     *,
     settings: Sequence[str] | None = None,
     tasks: Sequence[str] | None = None,
+    backends: Sequence[str] | None = None,
 ) -> tuple[pd.DataFrame, pd.DataFrame | None]:
     """The runs of some settings and tasks, in ``runs.csv.xz`` data and its metadata.
 
     Args:
-        data: ``runs.csv.xz`` data (columns ``task``, ``setting``, ...).
+        data: ``runs.csv.xz`` data (columns ``task``, ``backend``, ``setting``, ...).
         meta: its ``runs_meta.csv``, or None.
         settings: keep only these settings (None: all).
-        tasks: keep only these tasks, env ids (None: all).
+        tasks: keep only these env ids, on every backend (None: all).
+        backends: keep only the runs on these backends (None: all).
 
     Raises:
-        ValueError: a setting or task has no run, naming those there are.
+        ValueError: a setting, env id or backend has no run, naming those there are.
 
     Examples:
-        >>> data = pd.DataFrame({"task": ["A", "A", "B"], "setting": ["a", "b", "a"],
-        ...                      "seed": 0, "frames": 128, "metric": "m", "value": 1.0})
+        >>> data = pd.DataFrame({"task": ["A", "A", "B"],
+        ...     "backend": ["gymnasium", "envpool", "envpool"],
+        ...     "setting": ["a", "b", "a"], "seed": 0, "frames": 128, "metric": "m",
+        ...     "value": 1.0})
         >>> keep_runs(data, None, settings=["a"], tasks=["B"])[0].shape[0]
         1
+        >>> keep_runs(data, None, backends=["envpool"])[0]["task"].tolist()
+        ['A', 'B']
         >>> keep_runs(data, None, settings=["d"])
         Traceback (most recent call last):
         ...
         ValueError: no runs of the settings ['d']; the data has ['a', 'b'].
     """
-    for column, values in (("setting", settings), ("task", tasks)):
+    selected = (("setting", settings), ("task", tasks), ("backend", backends))
+    for column, values in selected:
         if values is None:
             continue
         present = set(data[column])
@@ -594,57 +671,103 @@ def keep_runs(
     return data, meta
 
 
-def read_oracle(*paths: str | os.PathLike) -> dict[str, float]:
-    """The oracle mean return of each env id, from CSVs with ``env,mean_return``.
+def _require_backend(
+    table: pd.DataFrame, path: str | os.PathLike, expected: str, regenerate: str
+) -> None:
+    """Refuses an input table without a ``backend`` column, saying what is
+    expected and how to regenerate it."""
+    if "backend" not in table.columns:
+        raise ValueError(
+            f"{path} has no backend column: expected the columns {expected}, a "
+            "task's env id and the backend it ran on (gymnasium: minigrid's Python "
+            "envs; envpool: its C++ port) each in its own column. It was written "
+            f"before the backend column existed: regenerate it with {regenerate}."
+        )
 
-    Several tables are merged (minigrid's layouts, envpool's as
-    ``<env id>@envpool``, the suite's); an env id in two of them is refused.
+
+_ORACLE_COLUMNS = "env,backend,mean_return,..."
+_ORACLE_REGENERATE = (
+    "recipes/results/oracle.py (minigrid's layouts), benchmarks/envpool_oracle.py "
+    "or benchmarks/suite_oracle.py (envpool's)"
+)
+
+
+def read_oracle(*paths: str | os.PathLike) -> dict[tuple[str, str], float]:
+    """The oracle mean return of each task, (env id, backend), from CSVs with
+    ``env,backend,mean_return``.
+
+    Several tables are merged (minigrid's layouts, envpool's, the suite's); a task
+    in two of them is refused, and so is a table without a ``backend`` column.
+
+    Examples:
+        >>> import tempfile
+        >>> path = Path(tempfile.mkdtemp()) / "oracle.csv"
+        >>> _ = path.write_text("env,backend,mean_return\\nA,gymnasium,0.8\\nA,envpool,0.7\\n")
+        >>> read_oracle(path)
+        {('A', 'gymnasium'): 0.8, ('A', 'envpool'): 0.7}
     """
-    oracle: dict[str, float] = {}
-    source: dict[str, int] = {}  # the position in ``paths`` of each env's table
+    oracle: dict[tuple[str, str], float] = {}
+    source: dict[tuple[str, str], int] = {}  # the position in ``paths`` of its table
     for position, path in enumerate(paths):
-        table = pd.read_csv(path)
+        table = pd.read_csv(path, dtype={"env": str, "backend": str})
+        _require_backend(table, path, _ORACLE_COLUMNS, _ORACLE_REGENERATE)
         missing = {"env", "mean_return"} - set(table.columns)
         if missing:
             raise ValueError(f"{path} has no column {', '.join(sorted(missing))}")
-        for env, value in zip(table["env"], table["mean_return"]):
-            if str(env) in oracle:
-                where = (
-                    "twice" if source[str(env)] == position else "in another table too"
-                )
+        for env, backend, value in zip(
+            table["env"], table["backend"], table["mean_return"]
+        ):
+            task = (str(env), str(backend))
+            if task in oracle:
+                where = "twice" if source[task] == position else "in another table too"
                 raise ValueError(
-                    f"{path}: the oracle of {env} is {where} (one row per env id: a "
-                    "table of several action noises is one --oracle file per noise)"
+                    f"{path}: the oracle of {task_name(*task)} is {where} (one row "
+                    "per env id and backend: a table of several action noises is "
+                    "one --oracle file per noise)"
                 )
-            oracle[str(env)] = float(value)
-            source[str(env)] = position
+            oracle[task] = float(value)
+            source[task] = position
     return oracle
 
 
-def normalize_returns(data: pd.DataFrame, oracle: Mapping[str, float]) -> pd.DataFrame:
+def _oracle_returns(
+    data: pd.DataFrame, oracle: Mapping[tuple[str, str], float]
+) -> pd.Series:
+    """The oracle mean return of each row's task (NaN where it has none)."""
+    tasks = zip(data["task"], data["backend"])
+    return pd.Series([oracle.get(t, np.nan) for t in tasks], index=data.index)
+
+
+def normalize_returns(
+    data: pd.DataFrame, oracle: Mapping[tuple[str, str], float]
+) -> pd.DataFrame:
     """A copy of ``data`` with the returns of oracle tasks divided by the oracle's.
 
-    Only the rows of :data:`RETURN_METRICS` whose task is in ``oracle`` change.
+    Only the rows of :data:`RETURN_METRICS` whose task (env id, backend) is in
+    ``oracle`` change.
 
     Examples:
-        >>> data = pd.DataFrame({"task": ["A", "A", "B"], "metric": [
-        ...     "train/episode_return", "train/success_rate", "train/episode_return"],
-        ...     "value": [0.4, 0.5, 7.0]})
-        >>> normalize_returns(data, {"A": 0.8})["value"].tolist()
-        [0.5, 0.5, 7.0]
+        >>> data = pd.DataFrame({"task": ["A", "A", "A", "B"],
+        ...     "backend": ["gymnasium", "gymnasium", "envpool", "gymnasium"],
+        ...     "metric": ["train/episode_return", "train/success_rate",
+        ...                "train/episode_return", "train/episode_return"],
+        ...     "value": [0.4, 0.5, 0.4, 7.0]})
+        >>> oracle = {("A", "gymnasium"): 0.8, ("A", "envpool"): 0.5}
+        >>> normalize_returns(data, oracle)["value"].tolist()
+        [0.5, 0.5, 0.8, 7.0]
     """
     data = data.copy()
-    rows = data["metric"].isin(RETURN_METRICS) & data["task"].isin(list(oracle))
-    oracle_return = data.loc[rows, "task"].map(oracle)
-    data.loc[rows, "value"] = data.loc[rows, "value"] / oracle_return
+    oracle_return = _oracle_returns(data, oracle)
+    rows = data["metric"].isin(RETURN_METRICS) & oracle_return.notna()
+    data.loc[rows, "value"] = data.loc[rows, "value"] / oracle_return[rows]
     return data
 
 
-def _budgets(data: pd.DataFrame, budget: int | None) -> dict[str, int]:
+def _budgets(data: pd.DataFrame, budget: int | None) -> dict[tuple[str, str], int]:
     if budget is not None:
-        return {task: int(budget) for task in data["task"].unique()}
+        return {task: int(budget) for task in _tasks(data)}
     budgets = {}
-    for task, rows in data.groupby("task"):
+    for task, rows in data.groupby(TASK_KEYS):
         main = rows[rows["metric"] == MAIN_METRIC]
         # Runs that logged no train return: the frames all of them logged anything at.
         last = (
@@ -654,6 +777,12 @@ def _budgets(data: pd.DataFrame, budget: int | None) -> dict[str, int]:
     return budgets
 
 
+def _per_task(data: pd.DataFrame, values: Mapping[tuple[str, str], int]) -> pd.Series:
+    """Each row's value of its task (env id, backend) in ``values``."""
+    tasks = zip(data["task"], data["backend"])
+    return pd.Series([values[task] for task in tasks], index=data.index, dtype="int64")
+
+
 def _median_gap(frames: pd.Series) -> float:
     steps = np.unique(frames.to_numpy())
     return float(np.median(np.diff(steps))) if len(steps) > 1 else 0.0
@@ -661,7 +790,7 @@ def _median_gap(frames: pd.Series) -> float:
 
 def final_scores(
     data: pd.DataFrame,
-    oracle: Mapping[str, float] | None = None,
+    oracle: Mapping[tuple[str, str], float] | None = None,
     budget: int | None = None,
 ) -> pd.DataFrame:
     """Each run's value of each metric at the last logged step at or before the budget.
@@ -671,19 +800,21 @@ def final_scores(
 
     Args:
         data: the table of :func:`extract_run_data` (raw values).
-        oracle: env id to oracle mean return; its tasks' returns are normalised.
+        oracle: task (env id, backend) to oracle mean return; its tasks' returns
+            are normalised.
         budget: frames; ``None``: per task, the largest frame count that all of its
             runs reached in ``train/episode_return``.
 
     Returns:
-        ``task, setting, seed, metric, budget, frames, value`` (``frames``: the
-        step the value was logged at).
+        ``task, backend, setting, seed, metric, budget, frames, value``
+        (``frames``: the step the value was logged at).
 
     Examples:
-        >>> data = pd.DataFrame({"task": "A", "setting": "s", "seed": [0, 0, 1],
-        ...     "frames": [10, 20, 10], "metric": "train/episode_return",
-        ...     "value": [0.2, 0.4, 0.6]})
-        >>> final_scores(data, {"A": 0.8})[["seed", "budget", "frames", "value"]]
+        >>> data = pd.DataFrame({"task": "A", "backend": "gymnasium", "setting": "s",
+        ...     "seed": [0, 0, 1], "frames": [10, 20, 10],
+        ...     "metric": "train/episode_return", "value": [0.2, 0.4, 0.6]})
+        >>> oracle = {("A", "gymnasium"): 0.8}
+        >>> final_scores(data, oracle)[["seed", "budget", "frames", "value"]]
            seed  budget  frames  value
         0     0      10      10   0.25
         1     1      10      10   0.75
@@ -691,7 +822,7 @@ def final_scores(
     if oracle:
         data = normalize_returns(data, oracle)
     budgets = _budgets(data, budget)
-    data = data.assign(budget=data["task"].map(budgets))
+    data = data.assign(budget=_per_task(data, budgets))
     # A run that stopped short of the budget (by more than one logging period)
     # has no value at the budget: it is left out, not read at an earlier frame.
     reached = data.groupby(_RUN_KEYS)["frames"].agg(["max", _median_gap])
@@ -701,7 +832,7 @@ def final_scores(
     data = data[data["frames"] <= data["budget"]]
     last = data.groupby([*_RUN_KEYS, "metric"])["frames"].idxmax()
     columns = [*_RUN_KEYS, "metric", "budget", "frames", "value"]
-    return data.loc[last.values, columns].reset_index(drop=True)
+    return _in_task_order(data.loc[last.values, columns])
 
 
 def _bootstrap_seed(seed: int, *names: object) -> np.ndarray:
@@ -791,44 +922,48 @@ def _iqm_per_column(scores: np.ndarray) -> np.ndarray:
 
 def frames_to_threshold(
     data: pd.DataFrame,
-    oracle: Mapping[str, float],
+    oracle: Mapping[tuple[str, str], float],
     budget: int | None = None,
     fractions: Sequence[float] = FRACTIONS,
     window: int = EPISODE_WINDOW,
 ) -> pd.DataFrame:
     """Per seed, the first frame at which the normalised train return reached each fraction.
 
-    Only tasks in ``oracle`` are covered, and only steps up to the budget (as in
+    Only tasks (env id, backend) in ``oracle`` are covered, and only steps up to
+    the budget (as in
     :func:`final_scores`) are searched. Where the run logged its episode count
     (:data:`EPISODES_METRIC`), a step counts only once ``window`` episodes have
     ended: before that the moving mean holds the few episodes that ended first,
     the short, successful ones when failures run to a long time limit.
 
     Returns:
-        ``task, setting, seed, fraction, frames, searched_to``; ``frames`` is
-        ``<NA>`` (censored) when the fraction was not reached by ``searched_to``.
+        ``task, backend, setting, seed, fraction, frames, searched_to``;
+        ``frames`` is ``<NA>`` (censored) when the fraction was not reached by
+        ``searched_to``.
 
     Examples:
-        >>> data = pd.DataFrame({"task": "A", "setting": "s", "seed": 0,
-        ...     "frames": [10, 20, 30], "metric": "train/episode_return",
+        >>> data = pd.DataFrame({"task": "A", "backend": "envpool", "setting": "s",
+        ...     "seed": 0, "frames": [10, 20, 30], "metric": "train/episode_return",
         ...     "value": [0.1, 0.45, 0.6]})
-        >>> frames_to_threshold(data, {"A": 0.5}, fractions=[0.8, 1.5])
-          task setting  seed  fraction  frames  searched_to
-        0    A       s     0       0.8      20           30
-        1    A       s     0       1.5    <NA>           30
+        >>> table = frames_to_threshold(data, {("A", "envpool"): 0.5},
+        ...                             fractions=[0.8, 1.5])
+        >>> table[["task", "backend", "fraction", "frames", "searched_to"]]
+          task  backend  fraction  frames  searched_to
+        0    A  envpool       0.8      20           30
+        1    A  envpool       1.5    <NA>           30
     """
     budgets = _budgets(data, budget)
     episodes = {
         key: run.sort_values("frames")
         for key, run in data[data["metric"] == EPISODES_METRIC].groupby(_RUN_KEYS)
     }
-    data = data[(data["metric"] == MAIN_METRIC) & data["task"].isin(list(oracle))]
+    data = data[(data["metric"] == MAIN_METRIC) & _oracle_returns(data, oracle).notna()]
     data = normalize_returns(data, oracle)
     rows = []
-    for (task, setting, seed), run in data.groupby(_RUN_KEYS, sort=True):
-        run = run[run["frames"] <= budgets[task]].sort_values("frames")
+    for (task, backend, setting, seed), run in data.groupby(_RUN_KEYS, sort=True):
+        run = run[run["frames"] <= budgets[task, backend]].sort_values("frames")
         searched_to = int(run["frames"].iloc[-1]) if len(run) else None
-        counts = episodes.get((task, setting, seed))
+        counts = episodes.get((task, backend, setting, seed))
         full = np.ones(len(run), dtype=bool)
         if counts is not None and len(run):
             # the count logged at or before each step (0 before the first)
@@ -843,6 +978,7 @@ def frames_to_threshold(
             rows.append(
                 {
                     "task": task,
+                    "backend": backend,
                     "setting": setting,
                     "seed": seed,
                     "fraction": fraction,
@@ -855,7 +991,7 @@ def frames_to_threshold(
     )
     for column in ("frames", "searched_to"):
         table[column] = table[column].astype("Int64")
-    return table
+    return _in_task_order(table)
 
 
 def _median_frames(frames: pd.Series) -> int | str:
@@ -865,9 +1001,36 @@ def _median_frames(frames: pd.Series) -> int | str:
     return _NOT_REACHED if not np.isfinite(median) else int(round(median))
 
 
+def _rows_of(table: pd.DataFrame, task: str, backend: str, setting: str) -> pd.Series:
+    """Which rows of ``table`` are the runs of one setting of one task."""
+    return (
+        (table["task"] == task)
+        & (table["backend"] == backend)
+        & (table["setting"] == setting)
+    )
+
+
+def _final_columns(
+    name: str, scores: np.ndarray, reps: int, seed: int, names: Sequence[object]
+) -> dict[str, object]:
+    """``summary.csv``'s columns of one metric (short name ``name``) from its
+    final ``scores`` over seeds, the bootstrap named by ``names``."""
+    iqm = low = high = mean = None
+    if len(scores):
+        iqm, low, high = iqm_interval(scores, reps=reps, seed=seed, names=names)
+        mean = scores.mean()
+    return {
+        f"{name}_iqm": iqm,
+        f"{name}_ci_low": low,
+        f"{name}_ci_high": high,
+        f"{name}_mean": mean,
+        f"{name}_seeds": len(scores),
+    }
+
+
 def summarize(
     data: pd.DataFrame,
-    oracle: Mapping[str, float] | None = None,
+    oracle: Mapping[tuple[str, str], float] | None = None,
     budget: int | None = None,
     reps: int = 2000,
     seed: int = 0,
@@ -880,7 +1043,8 @@ def summarize(
 
     Args:
         data: the table of :func:`extract_run_data` (raw values).
-        oracle: env id to oracle mean return (tasks absent stay unnormalised).
+        oracle: task (env id, backend) to oracle mean return (tasks absent stay
+            unnormalised).
         budget: frames at which final performance is read (see :func:`final_scores`).
         reps (int): bootstrap replications of the 95% CIs.
         seed (int): seed of the bootstrap.
@@ -888,8 +1052,8 @@ def summarize(
         fractions: fractions of the oracle return for the threshold columns.
 
     Examples:
-        >>> data = pd.DataFrame({"task": "A", "setting": "s", "seed": [0, 1, 2, 3],
-        ...     "frames": 100, "metric": "train/episode_return",
+        >>> data = pd.DataFrame({"task": "A", "backend": "gymnasium", "setting": "s",
+        ...     "seed": [0, 1, 2, 3], "frames": 100, "metric": "train/episode_return",
         ...     "value": [0.0, 0.4, 0.6, 2.0]})
         >>> row = summarize(data, reps=100).iloc[0]
         >>> float(row["train_return_iqm"]), float(row["train_return_mean"])
@@ -901,55 +1065,37 @@ def summarize(
     thresholds = frames_to_threshold(data, oracle, budget, fractions)
     last = data[data["metric"] == MAIN_METRIC].groupby(_RUN_KEYS)["frames"].max()
     last = last.reset_index()
+    keys = [*TASK_KEYS, "setting"]
     short_of_budget = (
-        (last["frames"] < last["task"].map(budgets))
-        .groupby([last["task"], last["setting"]])
+        (last["frames"] < _per_task(last, budgets))
+        .groupby([last[k] for k in keys])
         .sum()
     )
     rows = []
-    for (task, setting), runs in data.groupby(["task", "setting"], sort=True):
-        normalized = task in oracle
+    for (task, backend, setting), runs in data.groupby(keys, sort=True):
+        normalized = (task, backend) in oracle
         row = {
             "task": task,
+            "backend": backend,
             "setting": setting,
             "normalized": normalized,
-            "oracle_return": oracle.get(task),
-            "budget": budgets[task],
+            "oracle_return": oracle.get((task, backend)),
+            "budget": budgets[task, backend],
             "seeds": runs["seed"].nunique(),
             "seeds_unfinished": None,
-            "seeds_short_of_budget": int(short_of_budget.get((task, setting), 0)),
+            "seeds_short_of_budget": int(
+                short_of_budget.get((task, backend, setting), 0)
+            ),
         }
         if meta is not None:
-            runs_meta = meta[(meta["task"] == task) & (meta["setting"] == setting)]
+            runs_meta = meta[_rows_of(meta, task, backend, setting)]
             row["seeds_unfinished"] = len(unfinished_runs(runs_meta))
+        scores = finals[_rows_of(finals, task, backend, setting)]
         for metric, name in METRICS.items():
-            scores = finals.loc[
-                (finals["task"] == task)
-                & (finals["setting"] == setting)
-                & (finals["metric"] == metric),
-                "value",
-            ].to_numpy()
-            iqm = low = high = mean = None
-            if len(scores):
-                iqm, low, high = iqm_interval(
-                    scores,
-                    reps=reps,
-                    seed=seed,
-                    names=("final", task, setting, metric),
-                )
-                mean = scores.mean()
-            row.update(
-                {
-                    f"{name}_iqm": iqm,
-                    f"{name}_ci_low": low,
-                    f"{name}_ci_high": high,
-                    f"{name}_mean": mean,
-                    f"{name}_seeds": len(scores),
-                }
-            )
-        crossings = thresholds[
-            (thresholds["task"] == task) & (thresholds["setting"] == setting)
-        ]
+            values = scores.loc[scores["metric"] == metric, "value"].to_numpy()
+            names = ("final", bootstrap_task_name(task, backend), setting, metric)
+            row.update(_final_columns(name, values, reps, seed, names))
+        crossings = thresholds[_rows_of(thresholds, task, backend, setting)]
         for fraction in fractions:
             at = crossings.loc[crossings["fraction"] == fraction, "frames"]
             row[f"seeds_reaching_{fraction}"] = (
@@ -969,7 +1115,7 @@ def summarize(
             summary[column] = pd.Series(
                 [row[column] for row in rows], index=summary.index, dtype=object
             )
-    return summary.round(4)
+    return _in_task_order(summary.round(4))
 
 
 def probability_of_improvement(scores_x: np.ndarray, scores_y: np.ndarray) -> float:
@@ -996,7 +1142,7 @@ def probability_of_improvement(scores_x: np.ndarray, scores_y: np.ndarray) -> fl
 
 def improvement_probabilities(
     data: pd.DataFrame,
-    oracle: Mapping[str, float] | None = None,
+    oracle: Mapping[tuple[str, str], float] | None = None,
     budget: int | None = None,
     reps: int = 2000,
     seed: int = 0,
@@ -1008,12 +1154,12 @@ def improvement_probabilities(
     rliable's), with a 95% stratified-bootstrap CI (rliable's).
 
     Returns:
-        ``task, budget, setting_x, setting_y, seeds_x, seeds_y, probability,
-        ci_low, ci_high``; no rows for a task with one setting.
+        ``task, backend, budget, setting_x, setting_y, seeds_x, seeds_y,
+        probability, ci_low, ci_high``; no rows for a task with one setting.
 
     Examples:
-        >>> data = pd.DataFrame({"task": "A", "setting": ["x", "x", "y", "y"],
-        ...     "seed": [0, 1, 0, 1], "frames": 10,
+        >>> data = pd.DataFrame({"task": "A", "backend": "gymnasium",
+        ...     "setting": ["x", "x", "y", "y"], "seed": [0, 1, 0, 1], "frames": 10,
         ...     "metric": "train/episode_return", "value": [1.0, 2.0, 0.0, 0.5]})
         >>> improvement_probabilities(data, reps=50)[["setting_x", "probability"]]
           setting_x  probability
@@ -1023,7 +1169,7 @@ def improvement_probabilities(
     finals = final_scores(data, oracle, budget)
     finals = finals[finals["metric"] == MAIN_METRIC]
     rows = []
-    for task, task_finals in finals.groupby("task", sort=True):
+    for (task, backend), task_finals in finals.groupby(TASK_KEYS, sort=True):
         by_setting = {
             s: g["value"].to_numpy()[:, None]
             for s, g in task_finals.groupby("setting", sort=True)
@@ -1032,7 +1178,8 @@ def improvement_probabilities(
             for y, scores_y in by_setting.items():
                 if x == y:
                     continue
-                stream = _bootstrap_seed(seed, "improvement", task, x, y)
+                name = bootstrap_task_name(task, backend)
+                stream = _bootstrap_seed(seed, "improvement", name, x, y)
                 point, interval = _interval_estimate(
                     [scores_x, scores_y],
                     probability_of_improvement,
@@ -1042,6 +1189,7 @@ def improvement_probabilities(
                 rows.append(
                     {
                         "task": task,
+                        "backend": backend,
                         "budget": int(task_finals["budget"].iloc[0]),
                         "setting_x": x,
                         "setting_y": y,
@@ -1052,10 +1200,9 @@ def improvement_probabilities(
                         "ci_high": float(np.ravel(interval)[1]),
                     }
                 )
-    columns = ["task", "budget", "setting_x", "setting_y", "seeds_x", "seeds_y"]
-    return pd.DataFrame(
-        rows, columns=[*columns, "probability", "ci_low", "ci_high"]
-    ).round(4)
+    columns = [*TASK_KEYS, "budget", "setting_x", "setting_y", "seeds_x", "seeds_y"]
+    table = pd.DataFrame(rows, columns=[*columns, "probability", "ci_low", "ci_high"])
+    return _in_task_order(table.round(4))
 
 
 def _figure(n_panels: int, width: float = 5.0, height: float = 3.6):
@@ -1130,7 +1277,7 @@ def _score_label(normalized: bool) -> str:
 def plot_curves(
     data: pd.DataFrame,
     path: str | os.PathLike,
-    oracle: Mapping[str, float] | None = None,
+    oracle: Mapping[tuple[str, str], float] | None = None,
     budget: int | None = None,
     reps: int = 2000,
     seed: int = 0,
@@ -1146,11 +1293,11 @@ def plot_curves(
     oracle = dict(oracle or {})
     data = normalize_returns(data[data["metric"] == MAIN_METRIC], oracle)
     budgets = _budgets(data, budget)
-    tasks = sorted(data["task"].unique())
+    tasks = _tasks(data)
     colors = _setting_colors(data["setting"].unique())
     fig, axes = _figure(len(tasks))
-    for ax, task in zip(axes, tasks):
-        task_data = data[data["task"] == task]
+    for ax, (task, backend) in zip(axes, tasks):
+        task_data = data[(data["task"] == task) & (data["backend"] == backend)]
         grid = np.linspace(0, task_data["frames"].max(), grid_points)
         for setting, runs in task_data.groupby("setting", sort=True):
             curves = np.stack(
@@ -1164,7 +1311,8 @@ def plot_curves(
             covered = np.isfinite(curves).all(axis=0)
             if not covered.any():
                 continue
-            stream = _bootstrap_seed(seed, "curve", task, setting)
+            name = bootstrap_task_name(task, backend)
+            stream = _bootstrap_seed(seed, "curve", name, setting)
             point, interval = _interval_estimate(
                 curves[:, None, covered], _iqm_per_column, reps, stream
             )
@@ -1177,10 +1325,10 @@ def plot_curves(
                 color=colors[setting],
                 alpha=0.2,
             )
-        ax.axvline(budgets[task], color="grey", linestyle=":", linewidth=1)
-        ax.set_title(task, fontsize="medium")
+        ax.axvline(budgets[task, backend], color="grey", linestyle=":", linewidth=1)
+        ax.set_title(task_name(task, backend), fontsize="medium")
         ax.set_xlabel("frames")
-        ax.set_ylabel(_score_label(task in oracle))
+        ax.set_ylabel(_score_label((task, backend) in oracle))
         ax.grid(True, alpha=0.2)
     title = (
         "train episode return: IQM over seeds (mean below 4 seeds), "
@@ -1205,11 +1353,11 @@ def plot_levels(summary: pd.DataFrame, path: str | os.PathLike) -> Path | None:
     rows = rows[rows["base"].isin(noisy)]
     if rows.empty:
         return None
-    tasks = sorted(rows["task"].unique())
+    tasks = _tasks(rows)
     colors = _setting_colors(sorted(noisy))
     fig, axes = _figure(len(tasks))
-    for ax, task in zip(axes, tasks):
-        task_rows = rows[rows["task"] == task]
+    for ax, (task, backend) in zip(axes, tasks):
+        task_rows = rows[(rows["task"] == task) & (rows["backend"] == backend)]
         for base, points in task_rows.groupby("base", sort=True):
             points = points.sort_values("level")
             iqm = points["train_return_iqm"].to_numpy(float)
@@ -1226,7 +1374,7 @@ def plot_levels(summary: pd.DataFrame, path: str | os.PathLike) -> Path | None:
                 label=f"{base} ({seeds}+ seeds)",
             )
         ax.set_xticks(sorted(task_rows["level"].unique()))
-        ax.set_title(task, fontsize="medium")
+        ax.set_title(task_name(task, backend), fontsize="medium")
         ax.set_xlabel(f"noise level ({LEVEL_KEY})")
         ax.set_ylabel(_score_label(bool(task_rows["normalized"].any())))
         ax.grid(True, alpha=0.2)
@@ -1247,7 +1395,7 @@ def _score_distribution(scores: np.ndarray, taus: np.ndarray) -> np.ndarray:
 def plot_profiles(
     data: pd.DataFrame,
     path: str | os.PathLike,
-    oracle: Mapping[str, float] | None = None,
+    oracle: Mapping[tuple[str, str], float] | None = None,
     budget: int | None = None,
     reps: int = 2000,
     seed: int = 0,
@@ -1263,13 +1411,14 @@ def plot_profiles(
     oracle = dict(oracle or {})
     finals = final_scores(data, oracle, budget)
     finals = finals[finals["metric"] == MAIN_METRIC]
-    tasks = sorted(finals["task"].unique())
+    tasks = _tasks(finals)
     colors = _setting_colors(finals["setting"].unique())
     fig, axes = _figure(len(tasks))
-    for ax, task in zip(axes, tasks):
-        task_finals = finals[finals["task"] == task]
+    for ax, (task, backend) in zip(axes, tasks):
+        task_finals = finals[(finals["task"] == task) & (finals["backend"] == backend)]
+        normalized = (task, backend) in oracle
         low, high = task_finals["value"].min(), task_finals["value"].max()
-        if task in oracle:
+        if normalized:
             low, high = min(0.0, low), max(1.0, high)
         else:
             # Start below the lowest score so that the profile starts at 1.
@@ -1280,7 +1429,8 @@ def plot_profiles(
         for setting, group in task_finals.groupby("setting", sort=True):
             # rly.create_performance_profile computes this same profile but takes
             # no random_state; the seeded bootstrap keeps the figure reproducible.
-            stream = _bootstrap_seed(seed, "profile", task, setting)
+            name = bootstrap_task_name(task, backend)
+            stream = _bootstrap_seed(seed, "profile", name, setting)
             profiles[setting], cis[setting] = _interval_estimate(
                 group["value"].to_numpy()[:, None],
                 lambda s, taus=taus: _score_distribution(s, taus),
@@ -1293,13 +1443,14 @@ def plot_profiles(
             performance_profile_cis=cis,
             ax=ax,
             colors={s: colors[s] for s in profiles},
-            xlabel=f"final {_score_label(task in oracle)} (tau)",
+            xlabel=f"final {_score_label(normalized)} (tau)",
             ylabel="fraction of runs > tau",
             labelsize="medium",
             ticklabelsize="small",
         )
+        budget_frames = int(task_finals["budget"].iloc[0])
         ax.set_title(
-            f"{task} at {int(task_finals['budget'].iloc[0])} frames", fontsize="medium"
+            f"{task_name(task, backend)} at {budget_frames} frames", fontsize="medium"
         )
     title = "performance profiles of the final train episode return, 95% bootstrap CI"
     return _save(fig, Path(path), title)
@@ -1331,15 +1482,24 @@ def runs_file(directory: Path) -> Path | None:
     return None
 
 
+def _regenerate_runs(path: Path) -> str:
+    return (
+        "recipes/results/aggregate.py from the run directories it was aggregated "
+        f"from (python recipes/results/aggregate.py RUN_DIR ... --out {path.parent})"
+    )
+
+
 def _read_runs_csv(path: Path) -> pd.DataFrame:
     # Labels such as "none" or "NA" are settings, not missing values; the
     # compression follows the file's name (runs.csv.xz or a plain runs.csv).
-    return pd.read_csv(
+    data = pd.read_csv(
         path,
-        dtype={"task": str, "setting": str, "metric": str},
+        dtype={"task": str, "backend": str, "setting": str, "metric": str},
         keep_default_na=False,
         float_precision="round_trip",
     )
+    _require_backend(data, path, ",".join(_DATA_COLUMNS), _regenerate_runs(path))
+    return data
 
 
 def _read_meta_beside(runs_csv: Path) -> pd.DataFrame | None:
@@ -1349,12 +1509,14 @@ def _read_meta_beside(runs_csv: Path) -> pd.DataFrame | None:
 
 
 def _read_meta_csv(path: Path) -> pd.DataFrame:
-    return pd.read_csv(
+    meta = pd.read_csv(
         path,
-        dtype={"task": str, "setting": str, "run_dir": str},
+        dtype={"task": str, "backend": str, "setting": str, "run_dir": str},
         keep_default_na=False,
         na_values={"total_frames": [""], "last_frame": [""]},
     )
+    _require_backend(meta, path, ",".join(_META_COLUMNS), _regenerate_runs(path))
+    return meta
 
 
 def _interval(row: pd.Series, name: str) -> str:
@@ -1407,17 +1569,20 @@ def status_text(
     beyond it), and in them, read at the budget. ``scores`` (the table of
     :func:`final_scores`, required when ``meta`` holds such runs) says which, so
     the text follows the scores' own rule. Where the summary covers several
-    tasks, each setting is named with its task.
+    tasks, each setting is named with its task (:func:`task_name`).
 
     Examples:
-        >>> summary = pd.DataFrame({"task": ["A", "B"], "setting": "s", "seeds": [3, 1]})
+        >>> summary = pd.DataFrame({"task": ["A", "A"],
+        ...     "backend": ["gymnasium", "envpool"], "setting": "s", "seeds": [3, 1]})
         >>> print(status_text(summary, None), end="")
-        Seeds that reached the budget, per setting: A s 3, B s 1.
-        >>> summary = pd.DataFrame({"task": "A", "setting": ["s", "t"], "seeds": 1,
-        ...     "train_return_seeds": [0, 1]})
-        >>> meta = pd.DataFrame({"task": "A", "setting": ["s", "t"], "seed": 0,
-        ...     "total_frames": 10000, "last_frame": [4000, 6000], "finished": False})
-        >>> scores = pd.DataFrame({"task": ["A"], "setting": ["t"], "seed": [0]})
+        Seeds that reached the budget, per setting: A s 3, A (envpool) s 1.
+        >>> summary = pd.DataFrame({"task": "A", "backend": "gymnasium",
+        ...     "setting": ["s", "t"], "seeds": 1, "train_return_seeds": [0, 1]})
+        >>> meta = pd.DataFrame({"task": "A", "backend": "gymnasium",
+        ...     "setting": ["s", "t"], "seed": 0, "total_frames": 10000,
+        ...     "last_frame": [4000, 6000], "finished": False})
+        >>> scores = pd.DataFrame({"task": ["A"], "backend": ["gymnasium"],
+        ...     "setting": ["t"], "seed": [0]})
         >>> print(status_text(summary, meta, scores), end="")
         ... # doctest: +NORMALIZE_WHITESPACE
         Seeds that reached the budget, per setting: s 0, t 1. Unfinished when
@@ -1426,10 +1591,11 @@ def status_text(
         completes them. Past the budget, not yet at their own total_frames (in the
         final scores, read at the budget): t seed 0 (6k of 10k frames).
     """
-    several = summary["task"].nunique() > 1
+    several = len(summary[TASK_KEYS].drop_duplicates()) > 1
 
     def name(row) -> str:
-        return f"{row['task']} {row['setting']}" if several else str(row["setting"])
+        task = task_name(row["task"], row["backend"])
+        return f"{task} {row['setting']}" if several else str(row["setting"])
 
     def listed(runs: pd.DataFrame) -> str:
         return ", ".join(
@@ -1473,8 +1639,8 @@ def report_table(summary: pd.DataFrame) -> pd.DataFrame:
     thresholds (median over seeds, with how many seeds reached it).
 
     Examples:
-        >>> row = {"task": "T", "setting": "s", "seeds": 4, "budget": 1000,
-        ...        "normalized": True, "train_return_iqm": 0.5,
+        >>> row = {"task": "T", "backend": "gymnasium", "setting": "s", "seeds": 4,
+        ...        "budget": 1000, "normalized": True, "train_return_iqm": 0.5,
         ...        "train_return_ci_low": 0.4, "train_return_ci_high": 0.6,
         ...        "median_frames_to_0.5": 800.0, "seeds_reaching_0.5": 3}
         >>> report_table(pd.DataFrame([row])).iloc[0]["return / oracle"]
@@ -1485,6 +1651,7 @@ def report_table(summary: pd.DataFrame) -> pd.DataFrame:
         ret = "return / oracle" if row.get("normalized", False) else "return"
         out = {
             "task": row["task"].removeprefix("MiniGrid-"),
+            "backend": row["backend"],
             "setting": row["setting"],
             # the runs that reached the budget (those in the final scores)
             "seeds": int(row.get("train_return_seeds", row["seeds"])),
@@ -1503,7 +1670,7 @@ def aggregate(
     data: pd.DataFrame,
     out: str | os.PathLike,
     *,
-    oracle: Mapping[str, float] | None = None,
+    oracle: Mapping[tuple[str, str], float] | None = None,
     budget: int | None = None,
     reps: int = 2000,
     seed: int = 0,
@@ -1600,7 +1767,13 @@ def _parser() -> argparse.ArgumentParser:
         "--tasks",
         nargs="+",
         metavar="TASK",
-        help="keep only the runs of these tasks (env ids)",
+        help="keep only the runs of these tasks (env ids, on every backend)",
+    )
+    parser.add_argument(
+        "--backends",
+        nargs="+",
+        metavar="BACKEND",
+        help="keep only the runs on these backends (gymnasium, envpool)",
     )
     add_label_keys_argument(
         parser,
@@ -1612,7 +1785,7 @@ def _parser() -> argparse.ArgumentParser:
         type=Path,
         nargs="+",
         default=None,
-        help="CSVs with env,mean_return (default: the committed oracle tables, "
+        help="CSVs with env,backend,mean_return (default: the committed oracle tables, "
         f"{ORACLE_DIR}/*oracle_returns*.csv, when run from the repository root); "
         "'none' to skip",
     )
@@ -1657,14 +1830,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.from_data is not None and not args.from_data.is_file():
             raise FileNotFoundError(f"{args.from_data} does not exist")
         runs_csv = _runs_data_file(args)
+        # Both modes compute from the file just written or given, so the tables
+        # of a rerun from the committed data are the same bytes.
+        data = _read_runs_csv(runs_csv)
+        meta = _read_meta_beside(runs_csv)
     except (FileNotFoundError, ValueError) as error:
         parser.error(str(error))
-    # Both modes compute from the file just written or given, so the tables of a
-    # rerun from the committed data are the same bytes.
-    data = _read_runs_csv(runs_csv)
     if data.empty:
         parser.error(f"{runs_csv}: the runs logged none of {', '.join(METRICS)}")
-    meta = _read_meta_beside(runs_csv)
     paths = aggregate(
         data,
         args.out,
@@ -1682,7 +1855,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _runs_data_file(args) -> Path:
     """The per-run data file the tables are computed from: ``--from-data`` as
     given, or the runs (merged into it, selected) written to ``--out``."""
-    selecting = args.settings is not None or args.tasks is not None
+    selected = {"--settings": args.settings, "--tasks": args.tasks}
+    selected["--backends"] = args.backends
+    selecting = any(values is not None for values in selected.values())
     if not args.runs and not selecting:
         return args.from_data
     if not args.runs:
@@ -1701,10 +1876,12 @@ def _runs_data_file(args) -> Path:
                 source=str(args.from_data),
             )
     if selecting:
-        data, meta = keep_runs(data, meta, settings=args.settings, tasks=args.tasks)
+        data, meta = keep_runs(
+            data, meta, settings=args.settings, tasks=args.tasks, backends=args.backends
+        )
         from_dir = args.from_data and args.from_data.resolve().parent
         if from_dir == args.out.resolve():
-            option = "--settings" if args.settings is not None else "--tasks"
+            option = next(o for o, values in selected.items() if values is not None)
             raise ValueError(
                 f"{option} would drop runs from {args.from_data}: write "
                 "the selection to another --out."
@@ -1722,16 +1899,17 @@ def _runs_data_file(args) -> Path:
 def _report(data, meta, oracle, written) -> None:
     """What an aggregation prints: seeds per setting, what it could not
     normalise, the runs unfinished or not logging yet, the files written."""
-    counts = data.groupby(["task", "setting"])["seed"].nunique()
-    for (task, setting), seeds in counts.items():
-        print(f"{task}  {setting}: {seeds} seeds")
-    raw = sorted(set(data["task"]) - set(oracle))
+    counts = data.groupby([*TASK_KEYS, "setting"])["seed"].nunique()
+    for (task, backend, setting), seeds in counts.items():
+        print(f"{task_name(task, backend)}  {setting}: {seeds} seeds")
+    raw = [task_name(*task) for task in _tasks(data) if task not in oracle]
     if raw:
         print("Not normalised (no oracle return): " + ", ".join(raw))
     if meta is not None:
         for _, run in unfinished_runs(meta).iterrows():
+            task = task_name(run["task"], run["backend"])
             print(
-                f"Unfinished: {run['task']} {run['setting']} seed {run['seed']} "
+                f"Unfinished: {task} {run['setting']} seed {run['seed']} "
                 f"({int(run['last_frame'])} of {int(run['total_frames'])} frames)"
             )
         for _, run in meta[meta["last_frame"].isna()].iterrows():

@@ -165,6 +165,7 @@ def run_scale(run_dir: str | Path, loaded, episodes) -> dict:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    from common.labels import run_backend
     from results.run_tools import (
         checkpoint_parser,
         load_runs,
@@ -180,7 +181,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     episodes = {}
     rows = []
     for run, (_, config, _) in loaded.items():
-        env = (config["env"]["name"], config["env"].get("backend", "gymnasium"))
+        env = (config["env"]["name"], run_backend(config))
         if env not in episodes:
             episodes[env] = random_episodes(*env, args.envs, args.steps, args.seed)
         rows.append(run_scale(run, loaded[run], episodes[env]))

@@ -424,11 +424,11 @@ def policy_episodes(policy, config: dict, envs: int, steps: int, seed: int) -> E
     steps of ``policy`` with sampled actions (as the training collector's)."""
     from tensordict.nn import InteractionType, set_interaction_type
 
+    from common.labels import run_backend
     from torchrl_surprise.envs import make_minigrid_env
 
-    env_cfg = config["env"]
     env = make_minigrid_env(
-        env_cfg["name"], num_envs=envs, backend=env_cfg.get("backend", "gymnasium")
+        config["env"]["name"], num_envs=envs, backend=run_backend(config)
     )
     env.set_seed(seed)
     torch.manual_seed(seed)

@@ -12,6 +12,12 @@ library's; this command writes its tables, as ``docs/results/oracle/`` holds the
 (``--action-noise``: the best expected return when an executed action is replaced
 by a random one with probability P,
 :func:`~torchrl_surprise.envs.oracle.optimal_returns_under_action_noise`.)
+
+Each table's second column, ``backend``, says whose layouts were solved:
+``gymnasium`` (minigrid's Python envs, the layouts this command solves) or
+``envpool`` (its C++ port's, ``benchmarks/envpool_oracle.py`` and
+``benchmarks/suite_oracle.py``); ``recipes/results/aggregate.py`` reads the
+oracle of a task by its env id and backend.
 """
 
 from __future__ import annotations
@@ -30,7 +36,11 @@ from torchrl_surprise.envs.oracle import (
     oracle_table,
 )
 
-__all__ = ["format_oracle_table", "main", "write_oracle_csv"]
+__all__ = ["GYMNASIUM", "format_oracle_table", "main", "write_oracle_csv"]
+
+#: The backend of minigrid's Python envs, whose layouts ``oracle_table`` solves
+#: (``common.labels.GYMNASIUM``, the aggregation's name for it).
+GYMNASIUM = "gymnasium"
 
 
 def _format_value(value: Any) -> str:
@@ -41,11 +51,19 @@ def write_oracle_csv(
     rows: Sequence[dict[str, Any]],
     path: str | Path,
     columns: Sequence[str] = ORACLE_CSV_COLUMNS,
+    *,
+    backend: str = GYMNASIUM,
 ) -> Path:
-    """Writes :func:`oracle_table` rows as a CSV (floats with 4 decimals).
+    """Writes :func:`oracle_table` rows as a CSV (floats with 4 decimals), a
+    ``backend`` column after ``env``.
 
-    ``columns``: :data:`NOISY_ORACLE_CSV_COLUMNS` for :func:`noisy_oracle_table`
-    rows.
+    Args:
+        rows: the rows, keyed by ``columns``.
+        path: the CSV to write.
+        columns: :data:`ORACLE_CSV_COLUMNS`, or :data:`NOISY_ORACLE_CSV_COLUMNS`
+            for :func:`noisy_oracle_table` rows; ``env`` first.
+        backend: whose layouts the rows solved, every row's ``backend``:
+            ``gymnasium`` (minigrid's, :func:`oracle_table`'s) or ``envpool``.
 
     Returns:
         The path written (parent folders are created).
@@ -55,16 +73,20 @@ def write_oracle_csv(
         >>> rows = oracle_table(["MiniGrid-DoorKey-5x5-v0"], 2)
         >>> with tempfile.TemporaryDirectory() as folder:
         ...     path = write_oracle_csv(rows, Path(folder) / "oracle.csv")
-        ...     print(path.read_text().splitlines()[0])
-        env,seeds,mean_return,std_return,mean_steps,min_steps,max_steps,max_episode_steps,solved_fraction,return_at_0.8_steps
+        ...     print(*path.read_text().splitlines()[:2], sep="\\n")
+        env,backend,seeds,mean_return,std_return,mean_steps,min_steps,max_steps,max_episode_steps,solved_fraction,return_at_0.8_steps
+        MiniGrid-DoorKey-5x5-v0,gymnasium,2,...
     """
+    if not columns or columns[0] != "env":
+        raise ValueError(f"the oracle's columns start with env, got {list(columns)}")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="") as file:
-        writer = csv.DictWriter(file, fieldnames=list(columns))
+        writer = csv.DictWriter(file, fieldnames=["env", "backend", *columns[1:]])
         writer.writeheader()
         for row in rows:
-            writer.writerow({key: _format_value(row[key]) for key in columns})
+            cells = {key: _format_value(row[key]) for key in columns}
+            writer.writerow({**cells, "backend": backend})
     return path
 
 
