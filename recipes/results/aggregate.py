@@ -58,13 +58,14 @@ env id, and is normalised by the oracle over envpool's layouts. Every table
 below has the ``backend`` column right after ``task``; a text or a figure names
 a task by its env id, followed by its backend in parentheses when that is not
 gymnasium (:func:`task_name`). A run's **setting** is the config's ``setting``
-when that is a non-empty string, else the Hydra overrides of ``.hydra/overrides.yaml`` minus ``seed``,
-``env.name``, ``+experiment``, ``experiment_name``, ``resume``,
-``resume_without_logs``, ``torch_threads``, ``hydra.*``, ``logger.*``, ``eval.*`` and ``checkpoint.*`` (they
-name the run or change what it reports, not what it learns), sorted and joined
-with ``,`` (see :func:`setting_label`), else the ``bonus``. A step logged twice (a
-resumed run) keeps its last value; non-finite values (a moving mean before the
-first episode ended) are dropped. A run that stopped early is kept up to where it
+when that is a non-empty string, else the Hydra overrides of
+``.hydra/overrides.yaml`` minus ``seed``, ``env.name``, ``+experiment``,
+``experiment_name``, ``resume``, ``resume_without_logs``, ``torch_threads``,
+``hydra.*``, ``logger.*``, ``eval.*`` and ``checkpoint.*`` (they name the run or
+change what it reports, not what it learns), sorted and joined with ``,`` (see
+:func:`setting_label`), else the ``bonus``. A step logged twice (a resumed run)
+keeps its last value; non-finite values (a moving mean before the first episode
+ended) are dropped. A run that stopped early is kept up to where it
 got and marked unfinished.
 
 **Normalisation.** With ``--oracle`` (CSVs with columns ``env``, ``backend``
@@ -363,8 +364,8 @@ def find_runs(
         FileNotFoundError: a path does not exist, or no run directory (a folder
             holding ``config_resolved.yaml``) is under any of them.
         ValueError: two run directories are the same task (env id and backend),
-            setting and seed, or
-            a run's config has no value for one of ``label_keys``.
+            setting and seed, or a run's config has no value for one of
+            ``label_keys``.
 
     Examples:
         >>> import tempfile
@@ -587,9 +588,9 @@ def merge_run_data(
             task, backend, setting, seed = key
             raise ValueError(
                 f"task {task_name(task, backend)}, setting {setting}, seed {seed}: "
-                f"{run_dirs[key]} "
-                f"reached frame {reached}, {source} {old_reach[key]}: it would "
-                "replace a longer run; aggregate without that run directory"
+                f"{run_dirs[key]} reached frame {reached}, {source} "
+                f"{old_reach[key]}: it would replace a longer run; aggregate "
+                "without that run directory"
             )
 
     def kept(table: pd.DataFrame) -> pd.DataFrame:
@@ -930,8 +931,7 @@ def frames_to_threshold(
     """Per seed, the first frame at which the normalised train return reached each fraction.
 
     Only tasks (env id, backend) in ``oracle`` are covered, and only steps up to
-    the budget (as in
-    :func:`final_scores`) are searched. Where the run logged its episode count
+    the budget (as in :func:`final_scores`) are searched. Where the run logged its episode count
     (:data:`EPISODES_METRIC`), a step counts only once ``window`` episodes have
     ended: before that the moving mean holds the few episodes that ended first,
     the short, successful ones when failures run to a long time limit.
