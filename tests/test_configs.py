@@ -584,3 +584,19 @@ def test_a_user_chooses_among_bonuses_and_studies_keep_their_variants():
     cfg = composed("minigrid", ["+setting=vae_elliptical_every4"])
     assert cfg.setting == "vae_elliptical_every4" and cfg.intrinsic.update_every == 4
     assert not set(chosen) & {p.stem for p in study.parent.glob("*.yaml")}
+
+
+def test_ppos_default_bonus_is_the_recommended_vae_noveld_and_a2cs_the_elliptical():
+    # a user who names no bonus gets, under each learner, the VAE bonus the data
+    # recommends for it (README, "Which bonus to use"): under PPO the setting's
+    # whole bonus config, under A2C its VAE (A2C trains it every 4th batch)
+    for algo, setting in (("ppo", "vae_noveld"), ("a2c", "vae_elliptical")):
+        plain = composed("minigrid", [f"algo={algo}"])
+        chosen = composed("minigrid", [f"algo={algo}", f"+setting={setting}"])
+        assert plain.bonus == chosen.bonus == "vae"
+        assert plain.intrinsic.vae == chosen.intrinsic.vae, (algo, setting)
+    assert plain.intrinsic.update_every == 4
+    ppo = [
+        composed("minigrid", ["algo=ppo", *s]) for s in ([], ["+setting=vae_noveld"])
+    ]
+    assert ppo[0].intrinsic == ppo[1].intrinsic
