@@ -88,7 +88,7 @@ def _release(run):
         run._stop.restore()
     if run.progress_bar is not None:
         run.progress_bar.close()
-    run._lock.release()
+    run.dir.release()
 
 
 def _listing(folder: Path) -> list[str]:

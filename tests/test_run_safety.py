@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 from omegaconf import OmegaConf
 
-import common.run
+import common.rundir
 from common.run import TrainingRun
 
 RECIPES = Path(__file__).resolve().parents[1] / "recipes"
@@ -60,7 +60,7 @@ def test_a_rerun_sweep_skips_the_job_another_sweep_is_running(
 ):
     holder = start_holder(tmp_path)
     try:
-        monkeypatch.setattr(common.run, "in_sweep", lambda: True)
+        monkeypatch.setattr(common.rundir, "in_sweep", lambda: True)
         run = TrainingRun(OmegaConf.create(CFG), "demo", run_dir=tmp_path)
         assert run.nothing_to_do()  # the job returns: exit status 0
         out = capsys.readouterr().out

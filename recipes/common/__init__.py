@@ -1,8 +1,9 @@
 """What the recipes share: run scaffolding, typed configs, the MiniGrid builders.
 
 Not part of the ``torchrl_surprise`` wheel: it is the plumbing of the recipes in
-this directory (checkpoints and resume, signals, episode statistics, loggers and
-learning curves, one module each, composed by :class:`common.run.TrainingRun`; the
+this directory (checkpoints, the run directory's lock and resume checks, signals,
+episode statistics, loggers and learning curves, one module each, composed by
+:class:`common.run.TrainingRun`; the
 bonus registry in :mod:`common.bonuses`; the MiniGrid recipe's env, model, bonus and
 collector builders in :mod:`common.minigrid`; the config schemas and their
 validation in :mod:`common.config`). The recipes put ``recipes/`` on ``sys.path``

@@ -429,6 +429,34 @@ def first_non_finite(components: Mapping[str, Any]) -> str | None:
     return None
 
 
+def check_finite(
+    frames: int, checkpoint: RunCheckpoint | None = None, **values: Any
+) -> None:
+    """Stops a run when one of ``values`` (a loss tensor, or a module or an
+    optimiser, whose state is read) holds a NaN or an infinity, naming the first
+    such quantity (:class:`NonFiniteRun`); the run's last checkpoint, finite,
+    stays its own.
+
+    Examples:
+        >>> check_finite(64, loss=torch.tensor(1.0))
+        >>> check_finite(64, loss=torch.tensor(float("inf")))
+        Traceback (most recent call last):
+        ...
+        common.errors.NonFiniteRun: loss is not finite at 64 frames: ...
+    """
+    for name, value in values.items():
+        if isinstance(value, torch.Tensor):
+            where = None if torch.isfinite(value).all() else name
+        else:
+            where = first_non_finite({name: value})
+        if where is not None:
+            kept = "" if checkpoint is None else checkpoint.left_as_it_was() + " "
+            raise NonFiniteRun(
+                f"{where} is not finite at {frames} frames: the run diverged and "
+                f"stops. {kept}{DIVERGED_ADVICE}"
+            )
+
+
 class RunCheckpoint:
     """One mapping of what a run saves, used both to save and to load, written as a
     TorchRL checkpoint (:class:`torchrl.checkpoint.Checkpoint`).
@@ -500,6 +528,27 @@ class RunCheckpoint:
             else CheckpointRotation(keep_dir, keep_last=sys.maxsize)
         )
         self._space_checked = False
+
+    @classmethod
+    def for_run(
+        cls,
+        run_dir: str | os.PathLike,
+        components: Mapping[str, Any],
+        config: Mapping[str, Any],
+        keep: bool = False,
+    ) -> RunCheckpoint:
+        """The checkpoint of the run in ``run_dir``: ``checkpoint.torchrl``, each
+        periodic one also kept under ``checkpoints/`` with ``keep``, and
+        ``status.json`` rewritten with each save."""
+        run_dir = Path(run_dir)
+        return cls(
+            run_dir / CHECKPOINT_NAME,
+            components,
+            config=config,
+            keep_dir=run_dir / KEPT_CHECKPOINTS if keep else None,
+            # what identifies the run in status.json: computed once
+            status=run_labels(config, run_dir),
+        )
 
     def _metadata(self) -> dict[str, Any]:
         # The frame count and config sit in the manifest, readable without

@@ -15,6 +15,7 @@ from tensordict import TensorDictBase
 from .scalar_logs import find_scalar_log, read_scalar_csv
 
 __all__ = [
+    "CURVE_NAME",
     "EVAL_SEED_OFFSET",
     "EpisodeStats",
     "Evaluation",
@@ -23,6 +24,9 @@ __all__ = [
     "plot_run_curves",
     "run_curve_text",
 ]
+
+CURVE_NAME = "learning_curve.png"
+"""The learning curve a run draws when it ends, in its run directory."""
 
 
 class EpisodeStats:

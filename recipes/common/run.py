@@ -10,49 +10,31 @@ from __future__ import annotations
 
 import contextlib
 import os
-import shutil
 import time
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-import torch
+from tqdm import tqdm
 
-from .checkpoint import (
-    CHECKPOINT_NAME,
-    DIVERGED_ADVICE,
-    KEPT_CHECKPOINTS,
-    RunCheckpoint,
-    RunCounters,
-    first_non_finite,
-    load_resumed,
-)
-from .errors import NonFiniteRun, UserMistake
-from .evaluation import plot_run_curves, run_curve_text
-from .labels import run_labels
+from .checkpoint import RunCheckpoint, check_finite, load_resumed
+from .errors import UserMistake
+from .evaluation import CURVE_NAME, plot_run_curves, run_curve_text
 from .loggers import LoggerState, RunLogs
-from .rundir import (
-    LOCK_NAME,
-    RunDirInUse,
-    RunLock,
-    prepare_run,
-    write_run_record,
-)
+from .rundir import RunDirClaim, write_run_record
 from .scalar_logs import scalar_log_files
 from .stopping import StopSignal, in_sweep, stop_and_exit
 
 __all__ = ["CURVE_NAME", "TrainingRun"]
 
-CURVE_NAME = "learning_curve.png"
-"""The learning curve a run draws when it ends, in its run directory."""
-
 
 class TrainingRun:
     """What a recipe's run does around its algorithm, in the order it meets it.
 
-    1. ``TrainingRun(cfg, name)``: :func:`prepare_run` (threads, seeds, resume
-       checks, the checkpoint to resume from); :meth:`nothing_to_do` says
-       whether that checkpoint already holds the whole budget.
+    1. ``TrainingRun(cfg, name)``: the run directory's lock and checks
+       (:class:`~common.rundir.RunDirClaim`: threads, seeds, resume checks, the
+       checkpoint to resume from); :meth:`nothing_to_do` says whether that
+       checkpoint already holds the whole budget.
     2. :meth:`restore` with what a checkpoint holds, once the run is built: loads
        the checkpoint into it, opens the logger (:attr:`logger`; a resumed run
        continues its logger's run from the state the checkpoint holds as
@@ -76,6 +58,7 @@ class TrainingRun:
     Examples:
         >>> import tempfile
         >>> from omegaconf import OmegaConf
+        >>> from common.checkpoint import RunCounters
         >>> cfg = OmegaConf.create({"seed": 0, "resume": "auto", "torch_threads": 1,
         ...     "collector": {"total_frames": 256},
         ...     "logger": {"backend": "csv", "project_name": "p"},
@@ -102,95 +85,40 @@ class TrainingRun:
             from hydra.core.hydra_config import HydraConfig
 
             run_dir = HydraConfig.get().runtime.output_dir
-        self.cfg = cfg
-        self.name = name
-        self.run_dir = Path(run_dir)
-        self.resumed_from = None
-        self._skipped = ""
-        try:
-            # this process owns the run directory until it ends
-            self._lock = RunLock(self.run_dir)
-        except RunDirInUse as err:
-            if not in_sweep():
-                raise
-            # a rerun sweep leaves the job another sweep is running to it
-            self._skipped = f"Skipped: {err}"
-            return
-        # made for this launch (Hydra makes it empty; the lock file is ours):
-        # abandon() removes it
-        self._fresh = {p.name for p in self.run_dir.iterdir()} <= {LOCK_NAME}
-        # the checkpoint to resume from (None: a new run) and what it says
-        try:
-            source, self.resumed_from = prepare_run(cfg, self.run_dir)
-        except BaseException:
-            self.abandon()  # refused: the directory is as it was, and free
-            raise
-        self._source = source if self.resumed_from else None
-        self.logs: RunLogs | None = None
-        self.progress_bar = None
-        self.counters: RunCounters | None = None
-        self._checkpoint: RunCheckpoint | None = None
-        self._stop: StopSignal | None = None
+        self.cfg, self.name, self.run_dir = cfg, name, Path(run_dir)
+        # this process owns the run directory until it ends
+        self.dir = RunDirClaim(cfg, self.run_dir)
+        self.resumed_from = self.dir.resumed_from
+        self.logs = self.progress_bar = self.counters = None
+        self._checkpoint = self._stop = None
         self._on_exit: Sequence[Any] = ()
-
-    def abandon(self) -> None:
-        """Gives the run directory up before the run started (:meth:`restore`),
-        for a launch refused on a mistake: the lock is released and a directory
-        this launch made (absent or empty before it) is removed with what was
-        written in it, so a refused launch leaves nothing behind."""
-        if self._fresh and self.run_dir.is_dir():
-            # removed while the lock is held: no other launch has the directory
-            shutil.rmtree(self.run_dir, ignore_errors=True)
-        self._lock.release()
 
     @contextlib.contextmanager
     def starting(self) -> Iterator[None]:
         """Where a recipe builds its run, up to :meth:`restore`: a user's mistake
         raised there (an unknown env, a model that does not fit a transfer)
-        gives the run directory up (:meth:`abandon`) before it propagates."""
+        gives the run directory up (:meth:`RunDirClaim.abandon`) before it
+        propagates, leaving nothing behind."""
         try:
             yield
         except UserMistake:
-            self.abandon()
+            self.dir.abandon()
             raise
 
     @property
     def done_frames(self) -> int:
         """The frames the checkpoint to resume from holds (0 for a new run)."""
-        return 0 if self.resumed_from is None else int(self.resumed_from["frames"])
+        return self.dir.done_frames
 
     def nothing_to_do(self, outputs: Sequence[Path] = ()) -> bool:
         """Whether the checkpoint already holds ``collector.total_frames`` frames
         (a finished run in a rerun sweep) and the run's end left everything it
-        writes, or another sweep runs this job, saying so.
-
-        A finished run whose end is missing something (its learning curve when it
-        logged scalars, one of ``outputs``: the video a recipe records at its
-        end) has something to do: it is resumed, trains no further, and its end
-        writes what is missing.
-
-        Args:
-            outputs: the files the recipe's end writes, besides the curve.
-        """
-        if self._skipped:
-            print(self._skipped)
-            return True
-        frames = self.done_frames
-        if frames < self.cfg.collector.total_frames:
-            return False
-        missing = [Path(p) for p in outputs if not Path(p).exists()]
-        curve = self.run_dir / CURVE_NAME
-        if not curve.exists() and scalar_log_files(self.run_dir):
-            missing.insert(0, curve)
-        if missing:
-            print(
-                f"Finished at {frames} frames; writing what its end left missing: "
-                + ", ".join(str(p) for p in missing)
-            )
-            return False
-        self._lock.release()
-        print(f"Nothing to do: {frames} frames already done in {self.run_dir}.")
-        return True
+        writes (its learning curve when it logged scalars, and ``outputs``: the
+        video a recipe records at its end), or another sweep runs this job,
+        saying so (:meth:`RunDirClaim.finished`). A finished run missing one is
+        resumed, trains no further, and its end writes what is missing."""
+        curve = [self.run_dir / CURVE_NAME] if scalar_log_files(self.run_dir) else []
+        return self.dir.finished(self.cfg.collector.total_frames, curve + [*outputs])
 
     def restore(
         self,
@@ -211,51 +139,35 @@ class TrainingRun:
             show_progress: draw a progress bar; default: unless in a sweep
                 (parallel bars garble each other; the logs hold the progress).
         """
-        cfg = self.cfg
-        self.counters = components["progress"]
+        cfg, source = self.cfg, self.dir.source
         if "logger" in components:
             raise KeyError("'logger' is the run's own: the logger's state.")
-        logger_state = LoggerState(cfg.logger.backend)
-        saved = {**components, "logger": logger_state}
-        config = _resolved(cfg)
-        self._checkpoint = RunCheckpoint(
-            self.run_dir / CHECKPOINT_NAME,
-            saved,
-            config=config,
-            keep_dir=self.run_dir / KEPT_CHECKPOINTS
-            if cfg.checkpoint.get("keep", False)
-            else None,
-            # what identifies the run in status.json: computed once
-            status=run_labels(config, self.run_dir),
+        self.counters = components["progress"]
+        saved = {**components, "logger": LoggerState(cfg.logger.backend)}
+        self._checkpoint = RunCheckpoint.for_run(
+            self.run_dir, saved, _resolved(cfg), cfg.checkpoint.get("keep", False)
         )
-        if self._source is not None:
-            load_resumed(self._source, saved)
-        # the run starts: its record (resolved config, Hydra's) is this launch's
-        write_run_record(self.run_dir, cfg)
+        if source is not None:
+            load_resumed(source, saved)
+        write_run_record(self.run_dir, cfg)  # the run starts: its record is ours
         self.logs = RunLogs(
             cfg.logger.backend,
             self.run_dir,
             self.name,
             cfg.logger.project_name,
-            logger_state,
+            saved["logger"],
             # a fresh run has no events of a killed run to hide
-            purge_after=self.counters.frames if self._source is not None else None,
+            purge_after=None if source is None else self.counters.frames,
         )
-        self._stop = StopSignal()
-        self._on_exit = tuple(on_exit)
-        if show_progress is None:
-            show_progress = not in_sweep()
-        from tqdm import tqdm
-
+        self._stop, self._on_exit = StopSignal(), tuple(on_exit)
         self.progress_bar = tqdm(
             total=cfg.collector.total_frames,
             initial=self.counters.frames,
             unit="f",
             desc=f"{self.name} {cfg.get('bonus', '')}".strip(),
-            disable=not show_progress,
+            disable=not (not in_sweep() if show_progress is None else show_progress),
         )
-        self.start_frames = self.counters.frames
-        self._start_time = time.perf_counter()
+        self.start_frames, self._start_time = self.counters.frames, time.perf_counter()
 
     def per_second(self, count: float) -> float:
         """``count`` (frames, updates done since :meth:`restore`) per second."""
@@ -264,33 +176,8 @@ class TrainingRun:
     def check_finite(self, frames: int, **values: Any) -> None:
         """Stops the run when a loss (a tensor) or a module's or optimiser's
         state holds a NaN or an infinity, naming the first such quantity; the
-        last checkpoint, finite, stays the run's (:class:`NonFiniteRun`).
-
-        Examples:
-            >>> import torch
-            >>> run = TrainingRun.__new__(TrainingRun)
-            >>> run.run_dir = "run"
-            >>> run.check_finite(64, loss=torch.tensor(1.0))
-            >>> run.check_finite(64, loss=torch.tensor(float("inf")))
-            Traceback (most recent call last):
-            ...
-            common.errors.NonFiniteRun: loss is not finite at 64 frames: ...
-        """
-        for name, value in values.items():
-            if isinstance(value, torch.Tensor):
-                where = None if torch.isfinite(value).all() else name
-            else:
-                where = first_non_finite({name: value})
-            if where is not None:
-                kept = (
-                    self._checkpoint.left_as_it_was()
-                    if getattr(self, "_checkpoint", None) is not None
-                    else ""
-                )
-                raise NonFiniteRun(
-                    f"{where} is not finite at {frames} frames: the run diverged "
-                    f"and stops. {kept} {DIVERGED_ADVICE}".replace("  ", " ")
-                )
+        last checkpoint, finite, stays the run's (:func:`check_finite`)."""
+        check_finite(frames, self._checkpoint, **values)
 
     @property
     def logger(self):
@@ -306,10 +193,10 @@ class TrainingRun:
         """The end of an iteration (updates done, logs written): progress, the
         periodic checkpoint, and on a stop request save, say how to resume, exit
         with status ``128 + signal`` (:func:`stop_and_exit`)."""
-        frames = self.counters.frames
+        frames, cfg = self.counters.frames, self.cfg
         self.progress_bar.update(frames - self.progress_bar.n)
         self._checkpoint.save_every(
-            self.cfg.checkpoint.interval_frames, self.cfg.collector.total_frames
+            cfg.checkpoint.interval_frames, cfg.collector.total_frames
         )
         if self._stop:
             self._checkpoint.save()
@@ -326,13 +213,7 @@ class TrainingRun:
             close()
 
     def finish(
-        self,
-        summary: str,
-        *,
-        curves: Mapping[str, str],
-        title: str = "",
-        ylabel: str = "",
-        optimum: tuple[str, float] | None = None,
+        self, summary: str, *, curves: Mapping[str, str], **plot: Any
     ) -> Path | None:
         """The final checkpoint, the learning curve and the summary.
 
@@ -340,8 +221,9 @@ class TrainingRun:
             summary: what the run reached (printed after ``Done: ``).
             curves: logged scalar -> label, drawn into ``learning_curve.png``
                 (:func:`plot_run_curves`) whatever the logger (none without one).
-            optimum: ``(label, value)``, the task's best return, drawn as a
-                dashed line (the MiniGrid oracle's); ``None``: no line.
+            **plot: the curve's ``title``, ``ylabel`` and ``optimum`` (``(label,
+                value)``, the task's best return, drawn as a dashed line: the
+                MiniGrid oracle's; default: no line).
 
         Returns:
             The learning curve's path (``None`` when nothing was logged).
@@ -349,20 +231,14 @@ class TrainingRun:
         self._stop.restore()
         self._checkpoint.save()
         self._close("FINISHED")
-        curve = plot_run_curves(
-            self.run_dir / "logs",
-            curves,
-            self.run_dir / CURVE_NAME,
-            title=title,
-            ylabel=ylabel,
-            optimum=optimum,
-        )
+        logs = self.run_dir / "logs"
+        curve = plot_run_curves(logs, curves, self.run_dir / CURVE_NAME, **plot)
         drawn = run_curve_text(curve, self.cfg.logger.backend, curves)
         print(
             f"Done: {summary}\nLearning curve: {drawn}\n"
-            f"Logs: {self.run_dir / 'logs'}\nRun directory: {self.run_dir}"
+            f"Logs: {logs}\nRun directory: {self.run_dir}"
         )
-        self._lock.release()
+        self.dir.release()
         return curve
 
 

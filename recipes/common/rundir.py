@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import random
+import shutil
 import socket
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -27,6 +28,7 @@ from .errors import MissingRunFile, ResumeRefused, RunAlreadyThere, UserMistake
 from .files import remove_path, write_atomically
 from .scalar_logs import scalar_log_files, truncate_scalar_logs
 from .status import STATUS_NAME, read_run_status
+from .stopping import in_sweep
 
 
 def seed_everything(seed: int) -> None:
@@ -385,6 +387,96 @@ class RunLock:
                 setattr(self, name, None)
 
     __del__ = release
+
+
+class RunDirClaim:
+    """A launch's hold on its run directory, from its checks to the run's end.
+
+    Takes the directory's :class:`RunLock`, then :func:`prepare_run` (threads,
+    seeds, resume checks, the checkpoint to resume from). In a sweep, a job whose
+    directory another process holds is skipped (:attr:`skipped`): a rerun sweep
+    leaves it to the sweep running it. A refused launch gives the directory up
+    as it found it (:meth:`abandon`).
+
+    Args:
+        cfg: the run's config (``seed``, ``resume``, ``torch_threads``, ...).
+        run_dir: the run directory.
+
+    Raises:
+        RunDirInUse: another process holds the directory, outside a sweep.
+
+    Examples:
+        >>> import tempfile
+        >>> from omegaconf import OmegaConf
+        >>> cfg = OmegaConf.create({"seed": 0, "resume": "auto", "torch_threads": 1})
+        >>> claim = RunDirClaim(cfg, tempfile.mkdtemp())
+        >>> claim.source is None, claim.done_frames
+        (True, 0)
+        >>> claim.finished(256, [])
+        False
+        >>> claim.abandon(); claim.path.exists()  # made for this launch: removed
+        False
+    """
+
+    def __init__(self, cfg, run_dir: str | os.PathLike):
+        self.path = Path(run_dir)
+        self.skipped = ""
+        self.source = self.resumed_from = None
+        try:
+            self._lock = RunLock(self.path)
+        except RunDirInUse as err:
+            if not in_sweep():
+                raise
+            self.skipped = f"Skipped: {err}"
+            return
+        # made for this launch (Hydra makes it empty; the lock file is ours)
+        self._fresh = {p.name for p in self.path.iterdir()} <= {LOCK_NAME}
+        try:
+            source, self.resumed_from = prepare_run(cfg, self.path)
+        except BaseException:
+            self.abandon()  # refused: the directory is as it was, and free
+            raise
+        self.source = source if self.resumed_from else None
+
+    @property
+    def done_frames(self) -> int:
+        """The frames the checkpoint to resume from holds (0 for a new run)."""
+        return 0 if self.resumed_from is None else int(self.resumed_from["frames"])
+
+    def finished(self, total_frames: int, outputs: Sequence[Path]) -> bool:
+        """Whether there is nothing left to do, saying so: another sweep runs the
+        job (:attr:`skipped`), or the checkpoint holds ``total_frames`` and
+        each of ``outputs`` (what the run's end writes) exists. A finished run
+        missing one of them has its end to write: ``False``, naming them."""
+        if self.skipped:
+            print(self.skipped)
+            return True
+        frames = self.done_frames
+        if frames < total_frames:
+            return False
+        missing = [Path(p) for p in outputs if not Path(p).exists()]
+        if missing:
+            print(
+                f"Finished at {frames} frames; writing what its end left missing: "
+                + ", ".join(str(p) for p in missing)
+            )
+            return False
+        self.release()
+        print(f"Nothing to do: {frames} frames already done in {self.path}.")
+        return True
+
+    def abandon(self) -> None:
+        """Gives the directory up before the run started, for a launch refused on
+        a mistake: a directory this launch made (absent or empty before it) is
+        removed with what was written in it, and the lock is released."""
+        if self._fresh and self.path.is_dir():
+            # removed while the lock is held: no other launch has the directory
+            shutil.rmtree(self.path, ignore_errors=True)
+        self.release()
+
+    def release(self) -> None:
+        """Releases the directory's lock (the process's end does it as well)."""
+        self._lock.release()
 
 
 HYDRA_RECORD = ".hydra"
