@@ -35,6 +35,9 @@ class EpisodeStats:
     Reads the episode return summed by TorchRL's ``RewardSum`` (extrinsic reward
     when the bonus is mixed in after collection) and the length from
     ``StepCounter``, at the transitions where ``("next", "done")`` is set.
+    Written here because TorchRL reads finished episodes batch by batch (its
+    sota scripts log the mean of ``episode_reward[done]``), with no window that
+    spans batches and resumes from a checkpoint.
 
     Args:
         window (int): number of recent episodes the moving mean covers.

@@ -134,6 +134,8 @@ class ScalarCSVWriter:
     is drawn from them (:func:`common.evaluation.plot_run_curves`), and a resume
     cuts them at the checkpoint as it cuts a CSV run's (:func:`truncate_scalar_logs`).
     Each row is flushed when written: what a checkpoint follows is on disk.
+    Written here rather than as a second ``CSVLogger``, whose experiment keeps
+    every scalar it logged in memory for the length of the run.
 
     Args:
         log_dir: the experiment's folder, ``<run dir>/logs/<experiment>``.
