@@ -329,7 +329,7 @@ def test_resume_refuses_a_changed_experiment_and_never_overwrites_a_run(tmp_path
     run_recipe(run_dir, "bonus=vae", "collector.total_frames=128")
     config = (run_dir / "config_resolved.yaml").read_text()
     # Three changes at once: the refusal names each (one process; what counts as a
-    # change: config_differences' doctests in recipes/common/run.py).
+    # change: config_differences' doctests in recipes/common/rundir.py).
     changes = {
         "env.name=MiniGrid-DoorKey-5x5-v0": (
             "env.name: 'MiniGrid-MultiRoom-N3-S4-v0' -> 'MiniGrid-DoorKey-5x5-v0'"

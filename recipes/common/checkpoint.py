@@ -546,8 +546,7 @@ class RunCheckpoint:
             components,
             config=config,
             keep_dir=run_dir / KEPT_CHECKPOINTS if keep else None,
-            # what identifies the run in status.json: computed once
-            status=run_labels(config, run_dir),
+            status=True,
         )
 
     def _metadata(self) -> dict[str, Any]:

@@ -17,7 +17,7 @@ from typing import Any
 
 from tqdm import tqdm
 
-from .checkpoint import RunCheckpoint, check_finite, load_resumed
+from .checkpoint import RunCheckpoint, RunCounters, check_finite, load_resumed
 from .errors import UserMistake
 from .evaluation import CURVE_NAME, plot_run_curves, run_curve_text
 from .loggers import LoggerState, RunLogs
@@ -58,7 +58,6 @@ class TrainingRun:
     Examples:
         >>> import tempfile
         >>> from omegaconf import OmegaConf
-        >>> from common.checkpoint import RunCounters
         >>> cfg = OmegaConf.create({"seed": 0, "resume": "auto", "torch_threads": 1,
         ...     "collector": {"total_frames": 256},
         ...     "logger": {"backend": "csv", "project_name": "p"},
@@ -89,8 +88,11 @@ class TrainingRun:
         # this process owns the run directory until it ends
         self.dir = RunDirClaim(cfg, self.run_dir)
         self.resumed_from = self.dir.resumed_from
-        self.logs = self.progress_bar = self.counters = None
-        self._checkpoint = self._stop = None
+        self.logs: RunLogs | None = None
+        self.counters: RunCounters | None = None
+        self.progress_bar = None
+        self._checkpoint: RunCheckpoint | None = None
+        self._stop: StopSignal | None = None
         self._on_exit: Sequence[Any] = ()
 
     @contextlib.contextmanager
@@ -117,8 +119,11 @@ class TrainingRun:
         video a recipe records at its end), or another sweep runs this job,
         saying so (:meth:`RunDirClaim.finished`). A finished run missing one is
         resumed, trains no further, and its end writes what is missing."""
+        total = self.cfg.collector.total_frames
+        if self.dir.skipped or self.done_frames < total:
+            return self.dir.finished(total, outputs)
         curve = [self.run_dir / CURVE_NAME] if scalar_log_files(self.run_dir) else []
-        return self.dir.finished(self.cfg.collector.total_frames, curve + [*outputs])
+        return self.dir.finished(total, curve + [*outputs])
 
     def restore(
         self,
@@ -165,7 +170,7 @@ class TrainingRun:
             initial=self.counters.frames,
             unit="f",
             desc=f"{self.name} {cfg.get('bonus', '')}".strip(),
-            disable=not (not in_sweep() if show_progress is None else show_progress),
+            disable=in_sweep() if show_progress is None else not show_progress,
         )
         self.start_frames, self._start_time = self.counters.frames, time.perf_counter()
 
@@ -213,7 +218,13 @@ class TrainingRun:
             close()
 
     def finish(
-        self, summary: str, *, curves: Mapping[str, str], **plot: Any
+        self,
+        summary: str,
+        *,
+        curves: Mapping[str, str],
+        title: str = "",
+        ylabel: str = "",
+        optimum: tuple[str, float] | None = None,
     ) -> Path | None:
         """The final checkpoint, the learning curve and the summary.
 
@@ -221,9 +232,8 @@ class TrainingRun:
             summary: what the run reached (printed after ``Done: ``).
             curves: logged scalar -> label, drawn into ``learning_curve.png``
                 (:func:`plot_run_curves`) whatever the logger (none without one).
-            **plot: the curve's ``title``, ``ylabel`` and ``optimum`` (``(label,
-                value)``, the task's best return, drawn as a dashed line: the
-                MiniGrid oracle's; default: no line).
+            optimum: ``(label, value)``, the task's best return, drawn as a
+                dashed line (the MiniGrid oracle's); ``None``: no line.
 
         Returns:
             The learning curve's path (``None`` when nothing was logged).
@@ -232,7 +242,14 @@ class TrainingRun:
         self._checkpoint.save()
         self._close("FINISHED")
         logs = self.run_dir / "logs"
-        curve = plot_run_curves(logs, curves, self.run_dir / CURVE_NAME, **plot)
+        curve = plot_run_curves(
+            logs,
+            curves,
+            self.run_dir / CURVE_NAME,
+            title=title,
+            ylabel=ylabel,
+            optimum=optimum,
+        )
         drawn = run_curve_text(curve, self.cfg.logger.backend, curves)
         print(
             f"Done: {summary}\nLearning curve: {drawn}\n"

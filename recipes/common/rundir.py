@@ -422,6 +422,8 @@ class RunDirClaim:
         self.path = Path(run_dir)
         self.skipped = ""
         self.source = self.resumed_from = None
+        self._lock: RunLock | None = None
+        self._fresh = False
         try:
             self._lock = RunLock(self.path)
         except RunDirInUse as err:
@@ -476,7 +478,8 @@ class RunDirClaim:
 
     def release(self) -> None:
         """Releases the directory's lock (the process's end does it as well)."""
-        self._lock.release()
+        if self._lock is not None:
+            self._lock.release()
 
 
 HYDRA_RECORD = ".hydra"

@@ -94,7 +94,7 @@ def main(cfg) -> None:
     """The run, in the steps the module's docstring numbers: checks, build, the
     loop of batches and updates, the end (checkpoint, curve)."""
     validate_ddpg(cfg)
-    # Seeds, resume checks, the checkpoint to resume from (common/run.py)
+    # Seeds, resume checks, the checkpoint to resume from (common/rundir.py)
     run = TrainingRun(cfg, "ddpg")
     # a finished run writes the video (or curve) its end left missing
     video = [video_path(run.run_dir, run.done_frames)] if cfg.eval.video else []

@@ -102,7 +102,7 @@ def main(cfg) -> None:
     """The run, in the steps the module's docstring numbers: checks, build, the
     loop of updates, the end (curve, video, the committed results beside it)."""
     device = check(cfg)
-    # Seeds, resume checks, the checkpoint to resume from (common/run.py)
+    # Seeds, resume checks, the checkpoint to resume from (common/rundir.py)
     run = TrainingRun(cfg, cfg.algo.name)
     # a finished run writes the video (or curve) its end left missing
     video = [video_path(run.run_dir, run.done_frames)] if cfg.eval.video else []
