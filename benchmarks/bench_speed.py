@@ -668,6 +668,9 @@ def ours_env(make: Callable, steps: int) -> Sample:
 def raw_env(env_name: str, steps: int) -> Sample:
     import gymnasium as gym
 
+    from torchrl_surprise.envs import register_minigrid_envs
+
+    register_minigrid_envs()  # the paper's MultiRoom ids are not minigrid's own
     env = gym.make(env_name)
     env.reset(seed=0)
     env.action_space.seed(0)
