@@ -1,10 +1,11 @@
 """Where a frame's time goes: the recipes' training loops under py-spy, per stage.
 
 Each recipe runs in a subprocess under ``py-spy record`` (sampling, raw stacks).
-Every sample taken inside the training loop is attributed to the stage of the
-loop line it is under (the innermost frame of the recipe's ``main``: the stages
-are regions of ``main.py`` that start at the marker lines below), and then, by
-its innermost Python frame, to a kind of work:
+Every sample taken inside the training loop is attributed to a stage by the
+innermost frame of the recipe's ``main.py`` that has one (the stages are that
+file's functions of the loop's steps, or regions of a function that start at
+the marker lines below; a marker that is gone is an error), and then, by its
+innermost Python frame, to a kind of work:
 
 * ``env``: gymnasium, MiniGrid or MuJoCo code (the simulation itself);
 * ``torch ops``: torch operators (``torch.nn`` layers and functional, autograd,
@@ -24,6 +25,7 @@ Writes ``docs/results/bench_profile.txt`` (``--out``).
 from __future__ import annotations
 
 import argparse
+import ast
 import collections
 import os
 import shutil
@@ -37,40 +39,49 @@ ROOT = Path(__file__).resolve().parents[1]
 MINIGRID = ROOT / "recipes" / "minigrid" / "main.py"
 DDPG = ROOT / "recipes" / "ddpg_mujoco" / "main.py"
 
-# (marker substring, stage): a stage runs from its marker line to the next marker.
+# (function of the recipe's main.py, marker substring or None, stage): a function
+# given with None is that stage from its first line; a marker's stage runs from
+# its line to the next marker of the same function, or the function's end.
 MINIGRID_STAGES = [
-    ("for data in collector:", "collection (collector: env + policy)"),
-    ("frames += data.numel()", "bookkeeping (episode stats)"),
-    ('if variant == "info_gain":', "bonus model training"),
-    ("# Step 2:", "bonus forward"),
-    ("data = advantage(data)", "advantage (GAE)"),
-    ("# Step 4:", "update (loss + backward + optimiser)"),
-    ("# Step 5:", "bonus model training"),
-    ("# Logging", "logging, eval, checkpoint"),
+    ("train", "for data in t.collector:", "collection (collector: env + policy)"),
+    ("train", "frames += data.numel()", "bookkeeping (episode stats)"),
+    ("train", 'if variant == "info_gain":', "bonus model training"),
+    ("train", "data = bonus_and_advantage(", "bonus forward"),
+    ("train", "# Logging", "logging, eval, checkpoint"),
+    ("bonus_and_advantage", None, "bonus forward"),
+    ("bonus_and_advantage", "if t.reward_clip is not None:", "advantage (GAE)"),
+    ("learner_update", None, "update (loss + backward + optimiser)"),
+    ("train_bonus", None, "bonus model training"),
+    ("maybe_evaluate", None, "logging, eval, checkpoint"),
 ]
 DDPG_STAGES = [
-    ("for data in collector:", "collection (collector: env + actor)"),
-    ("frames += data.numel()", "bookkeeping (stats, obs statistics)"),
-    ("buffer.extend(", "replay buffer extend"),
-    ("sample = sample_uniform(", "replay buffer sample"),
-    ("sample = buffer.sample(", "replay buffer sample"),  # before DDPGUpdate
-    ("if bonus_at_sample:", "bonus on the sample"),
-    ("loss_value = ddpg.critic_loss(", "critic loss + backward + Adam"),
-    ("loss_actor = ddpg.actor_loss(", "actor loss + backward + Adam"),
-    ("ddpg.update_target()", "soft target update"),
-    # the loop as it was before DDPGUpdate (to profile older commits alike)
-    ("loss_value, _ = loss_module.loss_value(", "critic loss + backward + Adam"),
-    ("loss_actor, _ = loss_module.loss_actor(", "actor loss + backward + Adam"),
-    ("target_updater.step()", "soft target update"),
-    ("updates += 1", "per-update scalars"),
-    ("if vae_loss is not None and updates", "VAE step"),
-    ("pbar.update(", "logging, eval, checkpoint"),
+    ("train", "for data in t.collector:", "collection (collector: env + actor)"),
+    ("train", "frames += data.numel()", "bookkeeping (stats, obs statistics)"),
+    ("train", "if at_collection:", "bonus at collection"),
+    ("train", "t.buffer.extend(", "replay buffer extend"),
+    ("train", "if frames >= cfg.collector.init_random_frames:", "divergence check"),
+    ("train", "# Logging", "logging, eval, checkpoint"),
+    ("update", "sample = t.buffer.sample(", "replay buffer sample"),
+    ("update", "if at_sample:", "bonus on the sample"),
+    (
+        "update",
+        "loss_value, _ = t.loss_module.loss_value(",
+        "critic loss + backward + Adam",
+    ),
+    (
+        "update",
+        "loss_actor, _ = t.loss_module.loss_actor(",
+        "actor loss + backward + Adam",
+    ),
+    ("update", "t.target_updater.step()", "soft target update"),
+    ("update", "updates += 1", "per-update scalars"),
+    ("update", "if t.vae_loss is not None and updates", "VAE step"),
+    ("log_batch", None, "logging, eval, checkpoint"),
 ]
-# the end of the training loop (the MiniGrid recipe, then the DDPG one)
-LOOP_ENDS = ("run.finish(", "stop.restore()")
 
 PROFILES = {
-    # the recipe's defaults (the elliptical VAE bonus) on the envpool backend
+    # the recipes' defaults on the envpool backend (A2C: the elliptical VAE
+    # bonus; PPO: NovelD on the VAE), and each learner without a bonus
     "a2c-envpool": (
         MINIGRID,
         MINIGRID_STAGES,
@@ -80,6 +91,16 @@ PROFILES = {
         MINIGRID,
         MINIGRID_STAGES,
         ["algo=ppo", "env.backend=envpool", "collector.total_frames=40960"],
+    ),
+    "ppo-none-envpool": (
+        MINIGRID,
+        MINIGRID_STAGES,
+        [
+            "algo=ppo",
+            "bonus=none",
+            "env.backend=envpool",
+            "collector.total_frames=40960",
+        ],
     ),
     # the suite's peers (docs/results.rst, "The hard-exploration suite")
     "ppo-e3b-envpool": (
@@ -156,37 +177,54 @@ def kind_of(frame: str) -> str:
     return "other"
 
 
+class MissingMarker(ValueError):
+    """A stage's marker is no longer in the recipe's ``main.py``."""
+
+
 @dataclass
 class StageMap:
-    lines: dict[int, str]
+    """``(function, line) -> stage`` over a recipe's ``main.py``."""
+
+    lines: dict[tuple[str, int], str]
 
     @classmethod
-    def from_source(cls, main: Path, markers: list[tuple[str, str]]) -> StageMap:
-        source = main.read_text().splitlines()
-        starts: list[tuple[int, str]] = []
-        for marker, stage in markers:
-            for number, line in enumerate(source, start=1):
-                if marker in line:
-                    starts.append((number, stage))
-                    break
-        starts.sort()
-        end = next(
-            (
-                n
-                for n, line in enumerate(source, start=1)
-                if any(end in line for end in LOOP_ENDS)
-            ),
-            len(source),
-        )
-        lines: dict[int, str] = {}
-        for (start, stage), nxt in zip(starts, [*starts[1:], (end, "")]):
-            for number in range(start, nxt[0]):
-                lines[number] = stage
+    def from_source(
+        cls, main: Path, markers: list[tuple[str, str | None, str]]
+    ) -> StageMap:
+        text = main.read_text()
+        source = text.splitlines()
+        spans = {
+            node.name: (node.lineno, node.end_lineno)
+            for node in ast.walk(ast.parse(text))
+            if isinstance(node, ast.FunctionDef)
+        }
+        starts: dict[str, list[tuple[int, str]]] = collections.defaultdict(list)
+        for function, marker, stage in markers:
+            if function not in spans:
+                raise MissingMarker(f"{main} has no function {function}()")
+            first, last = spans[function]
+            if marker is None:
+                starts[function].append((first, stage))
+                continue
+            number = next(
+                (n for n in range(first, last + 1) if marker in source[n - 1]), None
+            )
+            if number is None:
+                raise MissingMarker(f"{main}: {function}() has no line {marker!r}")
+            starts[function].append((number, stage))
+        lines: dict[tuple[str, int], str] = {}
+        for function, marks in starts.items():
+            marks.sort()
+            last = spans[function][1]
+            for (start, stage), nxt in zip(marks, [*marks[1:], (last + 1, "")]):
+                for number in range(start, nxt[0]):
+                    lines[function, number] = stage
         return cls(lines)
 
 
 def attribute(raw: Path, main: Path, stage_map: StageMap):
-    """Samples per (stage, kind), for samples inside the training loop."""
+    """Samples per (stage, kind), for samples inside the training loop: each is
+    the stage of the innermost frame of the recipe's ``main.py`` that has one."""
     counts: dict[str, collections.Counter] = collections.defaultdict(
         collections.Counter
     )
@@ -197,20 +235,22 @@ def attribute(raw: Path, main: Path, stage_map: StageMap):
         if not n.isdigit():
             continue
         frames = stack.split(";")
-        # The innermost frame of the recipe's main() (hydra calls it from <module>).
-        idx = max(
-            (i for i, f in enumerate(frames) if f.startswith("main ") and needle in f),
-            default=None,
-        )
-        if idx is None:
-            continue
-        lineno = int(frames[idx].rsplit(":", 1)[1].rstrip(")"))
-        stage = stage_map.lines.get(lineno)
-        if stage is None:
+        found = None
+        for idx in range(len(frames) - 1, -1, -1):
+            frame = frames[idx]
+            if needle not in frame:
+                continue
+            function = frame.split(" ", 1)[0]
+            lineno = int(frame.rsplit(":", 1)[1].rstrip(")"))
+            stage = stage_map.lines.get((function, lineno))
+            if stage is not None:
+                found = idx, stage
+                break
+        if found is None:
             continue  # set-up or wrap-up, outside the timed loop
-        counts[stage][kind_of(frames[-1]) if idx < len(frames) - 1 else "other"] += int(
-            n
-        )
+        idx, stage = found
+        kind = kind_of(frames[-1]) if idx < len(frames) - 1 else "other"
+        counts[stage][kind] += int(n)
         total += int(n)
     return counts, total
 
