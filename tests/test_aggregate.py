@@ -430,6 +430,23 @@ def test_settings_keeps_only_the_runs_of_those_settings(sweep, tmp_path):
     assert set(read(alone, "runs.csv.xz")["setting"]) == {"none"}
 
 
+def test_settings_selects_from_a_data_file_copied_away_from_its_meta(sweep, tmp_path):
+    # `git show REV:.../runs.csv.xz > old.csv.xz` leaves runs_meta.csv behind
+    copy = tmp_path / "old.csv.xz"
+    copy.write_bytes((sweep["out"] / "runs.csv.xz").read_bytes())
+    common = ["--oracle", str(sweep["oracle"]), "--reps", str(REPS)]
+    out = tmp_path / "none"
+    argv = ["--from-data", str(copy), "--settings", "none", "--out", str(out)]
+    assert main([*argv, *common]) == 0
+    meta = read(out, "runs_meta.csv")
+    full = read(sweep["out"], "runs_meta.csv")
+    expected = full[full["setting"] == "none"]
+    assert sorted(meta["seed"]) == sorted(expected["seed"])
+    # each run's last logged frame; its budget and completion unknown
+    assert list(meta["last_frame"]) == list(expected["last_frame"])
+    assert meta["finished"].isna().all() and set(meta["run_dir"]) == {str(copy)}
+
+
 def test_tasks_keeps_only_the_runs_of_those_tasks(sweep, tmp_path):
     data = sweep["out"] / "runs.csv.xz"
     common = ["--oracle", str(sweep["oracle"]), "--reps", str(REPS)]

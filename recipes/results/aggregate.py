@@ -570,13 +570,7 @@ def merge_run_data(
         if missing:
             raise ValueError(f"{name} has no column {', '.join(missing)}")
     if earlier_meta is None:
-        reach = earlier.groupby(_RUN_KEYS, as_index=False)["frames"].max()
-        unknown = [pd.NA] * len(reach)
-        earlier_meta = reach.rename(columns={"frames": "last_frame"}).assign(
-            total_frames=pd.array(unknown, dtype="Int64"),
-            finished=pd.array(unknown, dtype="boolean"),
-            run_dir=source,
-        )[meta.columns]
+        earlier_meta = meta_of_data(earlier, source)[meta.columns]
     old_reach = earlier.groupby(_RUN_KEYS)["frames"].max()
     new_reach = data.groupby(_RUN_KEYS)["frames"].max()
     run_dirs = meta.set_index(_RUN_KEYS)["run_dir"]
@@ -1508,6 +1502,19 @@ def _read_meta_beside(runs_csv: Path) -> pd.DataFrame | None:
     return _read_meta_csv(meta_csv) if meta_csv.is_file() else None
 
 
+def meta_of_data(data: pd.DataFrame, source: str) -> pd.DataFrame:
+    """A ``runs_meta.csv`` table for data that came without one: each run with
+    its last logged frame, its budget and completion unknown, ``source`` as its
+    run directory."""
+    reach = data.groupby(_RUN_KEYS, as_index=False)["frames"].max()
+    unknown = [pd.NA] * len(reach)
+    return reach.rename(columns={"frames": "last_frame"}).assign(
+        total_frames=pd.array(unknown, dtype="Int64"),
+        finished=pd.array(unknown, dtype="boolean"),
+        run_dir=source,
+    )[_META_COLUMNS]
+
+
 def _read_meta_csv(path: Path) -> pd.DataFrame:
     meta = pd.read_csv(
         path,
@@ -1863,6 +1870,8 @@ def _runs_data_file(args) -> Path:
     if not args.runs:
         data = _read_runs_csv(args.from_data)
         meta = _read_meta_beside(args.from_data)
+        if meta is None:  # a table copied away from its runs_meta.csv
+            meta = meta_of_data(data, str(args.from_data))
     else:
         runs = find_runs(args.runs, args.label_keys)
         data = extract_run_data(runs, args.max_points)
