@@ -430,7 +430,9 @@ def test_settings_keeps_only_the_runs_of_those_settings(sweep, tmp_path):
     assert set(read(alone, "runs.csv.xz")["setting"]) == {"none"}
 
 
-def test_settings_selects_from_a_data_file_copied_away_from_its_meta(sweep, tmp_path):
+def test_settings_selects_from_a_data_file_copied_away_from_its_meta(
+    sweep, tmp_path, capsys
+):
     # `git show REV:.../runs.csv.xz > old.csv.xz` leaves runs_meta.csv behind
     copy = tmp_path / "old.csv.xz"
     copy.write_bytes((sweep["out"] / "runs.csv.xz").read_bytes())
@@ -438,6 +440,7 @@ def test_settings_selects_from_a_data_file_copied_away_from_its_meta(sweep, tmp_
     out = tmp_path / "none"
     argv = ["--from-data", str(copy), "--settings", "none", "--out", str(out)]
     assert main([*argv, *common]) == 0
+    assert f"no runs_meta.csv beside {copy}" in capsys.readouterr().err
     meta = read(out, "runs_meta.csv")
     full = read(sweep["out"], "runs_meta.csv")
     expected = full[full["setting"] == "none"]

@@ -1867,10 +1867,20 @@ def _runs_data_file(args) -> Path:
     selecting = any(values is not None for values in selected.values())
     if not args.runs and not selecting:
         return args.from_data
+    earlier_meta = _read_meta_beside(args.from_data) if args.from_data else None
+    if args.from_data is not None and earlier_meta is None:
+        # a table copied away from its runs_meta.csv (git show REV:... > x.csv.xz)
+        print(
+            f"Warning: no runs_meta.csv beside {args.from_data}: its runs keep "
+            "their last logged frame, and their budget, completion and run "
+            "directory are written as unknown. Copy its runs_meta.csv beside it "
+            "to keep them.",
+            file=sys.stderr,
+        )
     if not args.runs:
         data = _read_runs_csv(args.from_data)
-        meta = _read_meta_beside(args.from_data)
-        if meta is None:  # a table copied away from its runs_meta.csv
+        meta = earlier_meta
+        if meta is None:
             meta = meta_of_data(data, str(args.from_data))
     else:
         runs = find_runs(args.runs, args.label_keys)
@@ -1879,7 +1889,7 @@ def _runs_data_file(args) -> Path:
         if args.from_data is not None:
             data, meta = merge_run_data(
                 _read_runs_csv(args.from_data),
-                _read_meta_beside(args.from_data),
+                earlier_meta,
                 data,
                 meta,
                 source=str(args.from_data),
