@@ -22,7 +22,6 @@ from .errors import UserMistake
 from .evaluation import CURVE_NAME, plot_run_curves, run_curve_text
 from .loggers import LoggerState, RunLogs
 from .rundir import RunDirClaim, write_run_record
-from .scalar_logs import scalar_log_files
 from .stopping import StopSignal, in_sweep, stop_and_exit
 
 __all__ = ["CURVE_NAME", "TrainingRun"]
@@ -87,7 +86,6 @@ class TrainingRun:
         self.cfg, self.name, self.run_dir = cfg, name, Path(run_dir)
         # this process owns the run directory until it ends
         self.dir = RunDirClaim(cfg, self.run_dir)
-        self.resumed_from = self.dir.resumed_from
         self.logs: RunLogs | None = None
         self.counters: RunCounters | None = None
         self.progress_bar = None
@@ -108,6 +106,11 @@ class TrainingRun:
             raise
 
     @property
+    def resumed_from(self) -> dict[str, Any] | None:
+        """What the checkpoint to resume from says (``None`` for a new run)."""
+        return self.dir.resumed_from
+
+    @property
     def done_frames(self) -> int:
         """The frames the checkpoint to resume from holds (0 for a new run)."""
         return self.dir.done_frames
@@ -120,10 +123,7 @@ class TrainingRun:
         saying so (:meth:`RunDirClaim.finished`). A finished run missing one is
         resumed, trains no further, and its end writes what is missing."""
         total = self.cfg.collector.total_frames
-        if self.dir.skipped or self.done_frames < total:
-            return self.dir.finished(total, outputs)
-        curve = [self.run_dir / CURVE_NAME] if scalar_log_files(self.run_dir) else []
-        return self.dir.finished(total, curve + [*outputs])
+        return self.dir.finished(total, outputs, curve=self.run_dir / CURVE_NAME)
 
     def restore(
         self,

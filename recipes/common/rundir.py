@@ -445,11 +445,17 @@ class RunDirClaim:
         """The frames the checkpoint to resume from holds (0 for a new run)."""
         return 0 if self.resumed_from is None else int(self.resumed_from["frames"])
 
-    def finished(self, total_frames: int, outputs: Sequence[Path]) -> bool:
+    def finished(
+        self,
+        total_frames: int,
+        outputs: Sequence[Path],
+        curve: str | os.PathLike | None = None,
+    ) -> bool:
         """Whether there is nothing left to do, saying so: another sweep runs the
         job (:attr:`skipped`), or the checkpoint holds ``total_frames`` and
-        each of ``outputs`` (what the run's end writes) exists. A finished run
-        missing one of them has its end to write: ``False``, naming them."""
+        each of ``outputs`` (what the run's end writes) exists, and ``curve``
+        too when the run logged scalars. A finished run missing one of them has
+        its end to write: ``False``, naming them."""
         if self.skipped:
             print(self.skipped)
             return True
@@ -457,6 +463,9 @@ class RunDirClaim:
         if frames < total_frames:
             return False
         missing = [Path(p) for p in outputs if not Path(p).exists()]
+        if curve is not None and not Path(curve).exists():
+            if scalar_log_files(self.path):  # a run without scalars draws none
+                missing.insert(0, Path(curve))
         if missing:
             print(
                 f"Finished at {frames} frames; writing what its end left missing: "
